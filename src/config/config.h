@@ -1,0 +1,100 @@
+// The daemon's configuration as typed structs, loaded from YAML. Every error names
+// file:line:column and the key; the daemon exits with 78 (EX_CONFIG) on any of them.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/clock.h"
+#include "core/log.h"
+#include "core/result.h"
+#include "mavlink/frame_parser.h"
+
+namespace mavbond {
+
+constexpr int kExitConfig = 78;  // EX_CONFIG from sysexits.h
+
+/// Where a value came from, for messages about it after loading.
+struct SourceMark {
+    std::string file;
+    int line = 0;    // 1-based
+    int column = 0;  // 1-based
+};
+
+/// Allow/block lists of message ids (given in the YAML as ids or names such as HEARTBEAT).
+/// An empty allow list allows everything; block wins over allow.
+struct MessageFilterConfig {
+    std::vector<uint32_t> allow;
+    std::vector<uint32_t> block;
+};
+
+enum class EndpointType { Udp, Tcp, Uart };
+enum class EndpointMode { Server, Client };  // udp, tcp
+
+struct EndpointConfig {
+    std::string name;
+    EndpointType type = EndpointType::Udp;
+    EndpointMode mode = EndpointMode::Server;
+    std::string host;          // udp/tcp: IPv4 address or name ("0.0.0.0", "127.0.0.1")
+    uint16_t port = 0;         // udp/tcp
+    std::string device;        // uart
+    uint32_t baud = 57600;     // uart: any rate, standard or not
+    bool flow_control = false; // uart: RTS/CTS
+    Duration peer_timeout = seconds(30);      // udp server: forget a silent peer
+    Duration reconnect_min = milliseconds(500);  // tcp client, uart: backoff start
+    Duration reconnect_max = seconds(5);         // tcp client, uart: backoff cap
+    size_t tx_queue_bytes = 16384;             // bounded transmit queue
+    MessageFilterConfig filter_in;             // keys allow_in / block_in
+    MessageFilterConfig filter_out;            // keys allow_out / block_out
+    std::string bond;                          // bond name ("" = none); used by the bonding layer
+    SourceMark mark;                           // where this endpoint was declared
+};
+
+struct BondConfig {
+    std::string name;
+    enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
+    SourceMark mark;
+};
+
+/// One `filters:` entry. The plugin's own options are kept as raw key/value text with their
+/// marks, validated later against the plugin's declared options.
+struct FilterConfig {
+    std::string plugin;
+    bool enabled = true;
+    std::vector<std::string> bonds;      // scope; empty = everywhere
+    std::vector<std::string> endpoints;  // scope; empty = everywhere
+    struct Option {
+        std::string key;
+        std::string value;               // scalar text, or a flow-style sequence "[a, b]"
+        std::vector<std::string> items;  // sequence items when the value is a sequence
+        bool is_sequence = false;
+        SourceMark mark;
+    };
+    std::vector<Option> options;
+    SourceMark mark;
+};
+
+struct Config {
+    std::string path;                              // the file it came from
+    LogLevel log_level = LogLevel::Info;
+    UnknownIdPolicy unknown_messages = UnknownIdPolicy::Forward;
+    Duration route_timeout = seconds(30);          // forget a (sysid, compid) not heard for this
+    Duration report_interval = seconds(10);        // aggregated problem lines
+    std::string plugin_dir;                        // "" = compiled-in default
+    std::string status_socket;                     // "" = none
+    std::vector<EndpointConfig> endpoints;
+    std::vector<BondConfig> bonds;
+    std::vector<FilterConfig> filters;
+};
+
+/// Loads and validates a config file. The error's message is "file:line:column: what".
+Result<Config> load_config(const std::string& path);
+/// Same, from text (for tests); `name` stands in for the file name in messages.
+Result<Config> parse_config(const std::string& text, const std::string& name);
+
+/// "250ms", "2s", "1.5s", "1m" -> Duration.
+std::optional<Duration> parse_duration(std::string_view text);
+
+}  // namespace mavbond
