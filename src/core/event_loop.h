@@ -1,0 +1,133 @@
+// One thread, one epoll loop: fd watches, timers on the monotonic clock (a min-heap that sets
+// epoll_wait's timeout, no timerfd per timer) and signals through signalfd. No singleton: main
+// owns the loop and hands out references.
+#pragma once
+
+#include <sys/epoll.h>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <queue>
+#include <unordered_map>
+#include <vector>
+
+#include "core/clock.h"
+#include "core/result.h"
+#include "core/unique_fd.h"
+
+namespace mavbond {
+
+class EventLoop {
+    struct WatchRecord;
+
+public:
+    using IoHandler = std::function<void(uint32_t events)>;
+    /// Returns the delay until the next run, or Duration::zero() to stop.
+    using TimerHandler = std::function<Duration()>;
+    using SignalHandler = std::function<void(int signo)>;
+
+    /// RAII registration of an fd; the destructor removes it (safe inside its own handler).
+    class Watch {
+    public:
+        Watch() = default;
+        Watch(Watch&& other) noexcept;
+        Watch& operator=(Watch&& other) noexcept;
+        Watch(const Watch&) = delete;
+        Watch& operator=(const Watch&) = delete;
+        ~Watch() { reset(); }
+        /// Changes the epoll event mask (e.g. adds EPOLLOUT while a tx queue is non-empty).
+        void set_events(uint32_t events);
+        uint32_t events() const;
+        bool active() const { return record_ != nullptr; }
+        void reset();
+
+    private:
+        friend class EventLoop;
+        Watch(EventLoop* loop, WatchRecord* record) : loop_(loop), record_(record) {}
+        EventLoop* loop_ = nullptr;
+        WatchRecord* record_ = nullptr;
+    };
+
+    /// RAII timer; the destructor cancels it (safe inside its own handler).
+    class Timer {
+    public:
+        Timer() = default;
+        Timer(Timer&& other) noexcept;
+        Timer& operator=(Timer&& other) noexcept;
+        Timer(const Timer&) = delete;
+        Timer& operator=(const Timer&) = delete;
+        ~Timer() { cancel(); }
+        void cancel();
+        bool active() const;
+
+    private:
+        friend class EventLoop;
+        Timer(EventLoop* loop, uint64_t id) : loop_(loop), id_(id) {}
+        EventLoop* loop_ = nullptr;
+        uint64_t id_ = 0;
+    };
+
+    static Result<std::unique_ptr<EventLoop>> create();
+    ~EventLoop();
+    EventLoop(const EventLoop&) = delete;
+    EventLoop& operator=(const EventLoop&) = delete;
+
+    [[nodiscard]] Result<Watch> watch(int fd, uint32_t events, IoHandler handler);
+    /// Runs `handler` after `delay`, then again after whatever delay it returns.
+    [[nodiscard]] Timer schedule(Duration delay, TimerHandler handler);
+    /// Blocks `signo` and delivers it through signalfd to `handler` on the loop thread.
+    Result<void> on_signal(int signo, SignalHandler handler);
+    /// Runs after every dispatch round, before the loop sleeps (batch flushes).
+    void add_round_hook(std::function<void()> hook);
+    /// Runs `fn` once after this dispatch round: for destroying an object from inside one of
+    /// its own handlers.
+    void defer(std::function<void()> fn) { deferred_.push_back(std::move(fn)); }
+
+    /// Runs until request_exit(); returns the code given to it.
+    int run();
+    /// One round: waits at most max_wait for events (for tests). False once exit was requested.
+    bool run_once(Duration max_wait);
+    void request_exit(int code = 0);
+
+    /// The time cached at the start of this round (one clock read per batch).
+    TimePoint now() const { return now_; }
+    TimePoint refresh_now() { return now_ = Clock::now(); }
+
+private:
+    struct WatchRecord {
+        int fd;
+        uint32_t events;
+        IoHandler handler;
+        bool dead = false;
+    };
+    struct TimerEntry {
+        TimePoint due;
+        uint64_t id;
+        bool operator>(const TimerEntry& o) const { return due > o.due; }
+    };
+
+    explicit EventLoop(UniqueFd epoll_fd);
+    void remove_watch(WatchRecord* record);
+    void modify_watch(WatchRecord* record, uint32_t events);
+    void run_due_timers();
+    int timeout_ms() const;
+    void handle_signals();
+
+    UniqueFd epoll_fd_;
+    std::vector<std::unique_ptr<WatchRecord>> watches_;
+    std::vector<std::unique_ptr<WatchRecord>> graveyard_;  // freed after the round
+    std::priority_queue<TimerEntry, std::vector<TimerEntry>, std::greater<>> timer_heap_;
+    std::unordered_map<uint64_t, TimerHandler> timers_;
+    uint64_t next_timer_id_ = 1;
+    UniqueFd signal_fd_;
+    Watch signal_watch_;
+    std::unordered_map<int, SignalHandler> signal_handlers_;
+    std::vector<std::function<void()>> round_hooks_;
+    std::vector<std::function<void()>> deferred_;
+    TimePoint now_ = Clock::now();
+    bool exit_requested_ = false;
+    int exit_code_ = 0;
+};
+
+}  // namespace mavbond

@@ -1,0 +1,102 @@
+#include "endpoints/endpoint.h"
+
+#include <algorithm>
+#include <cerrno>
+
+#include "core/log.h"
+
+namespace mavbond {
+
+EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
+    rx.frames += o.rx.frames;
+    rx.bytes += o.rx.bytes;
+    rx.crc_errors += o.rx.crc_errors;
+    rx.garbage_bytes += o.rx.garbage_bytes;
+    rx.unknown_ids += o.rx.unknown_ids;
+    rx.bad_flags += o.rx.bad_flags;
+    rx_filtered += o.rx_filtered;
+    tx_frames += o.tx_frames;
+    tx_bytes += o.tx_bytes;
+    tx_filtered += o.tx_filtered;
+    tx_dropped += o.tx_dropped;
+    tx_errors += o.tx_errors;
+    return *this;
+}
+
+bool MessageFilter::passes(uint32_t msgid) const {
+    auto has = [msgid](const std::vector<uint32_t>& list) {
+        return std::find(list.begin(), list.end(), msgid) != list.end();
+    };
+    if (!config_.allow.empty() && !has(config_.allow))
+        return false;
+    return !has(config_.block);
+}
+
+Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode)
+    : config_(config), name_(std::move(name)), tx_(mode, config.tx_queue_bytes),
+      filter_in_(config.filter_in), filter_out_(config.filter_out) {}
+
+Endpoint::~Endpoint() = default;
+
+bool Endpoint::accept_in(const Frame& frame) {
+    if (filter_in_.empty() || filter_in_.passes(frame.msgid))
+        return true;
+    stats_.rx_filtered++;
+    return false;
+}
+
+bool Endpoint::send(const Frame& frame) {
+    if (!filter_out_.empty() && !filter_out_.passes(frame.msgid)) {
+        stats_.tx_filtered++;
+        return false;
+    }
+    if (!ready()) {
+        stats_.tx_dropped++;
+        return false;
+    }
+    bool was_clean = !tx_.has_lent();
+    if (!tx_.lend(frame.bytes)) {
+        flush();
+        tx_.lend(frame.bytes);
+        was_clean = true;
+    }
+    return was_clean;
+}
+
+int Endpoint::write_datagrams(const iovec*, size_t) { return -ENOTSUP; }
+ssize_t Endpoint::write_stream(const iovec*, size_t) { return -ENOTSUP; }
+
+void Endpoint::flush() {
+    if (tx_.empty())
+        return;
+    TxQueue::WriteResult r;
+    if (config_.type == EndpointType::Udp) {
+        r = tx_.write_datagrams(
+            [](void* self, const iovec* frames, size_t count) {
+                return static_cast<Endpoint*>(self)->write_datagrams(frames, count);
+            },
+            this);
+    } else {
+        r = tx_.write_stream(
+            [](void* self, const iovec* iov, size_t count) {
+                return static_cast<Endpoint*>(self)->write_stream(iov, count);
+            },
+            this);
+    }
+    stats_.tx_frames += r.frames_sent;
+    stats_.tx_bytes += r.bytes_sent;
+    stats_.tx_dropped += r.frames_dropped;
+    if (r.error != 0) {
+        stats_.tx_errors++;
+        if (config_.type != EndpointType::Udp)
+            on_write_error(r.error);
+    }
+    on_backlog(tx_.has_backlog());
+}
+
+void Endpoint::clear_tx() {
+    stats_.tx_dropped += tx_.clear();
+    on_backlog(false);
+}
+
+}  // namespace mavbond

@@ -1,0 +1,112 @@
+// An endpoint is one place frames come from and go to: a UDP peer, a UDP client, a TCP
+// connection, a UART. Servers (UDP, TCP) are endpoints too, but not route targets: they own
+// the peers/connections they learn, which are.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "config/config.h"
+#include "endpoints/tx_queue.h"
+#include "mavlink/frame.h"
+#include "mavlink/frame_parser.h"
+
+namespace mavbond {
+
+class Router;
+class EventLoop;
+
+struct EndpointStats {
+    ParserCounters rx;          // frames, bytes, crc_errors, garbage_bytes, unknown_ids, bad_flags
+    uint64_t rx_filtered = 0;   // dropped by allow_in/block_in
+    uint64_t tx_frames = 0;
+    uint64_t tx_bytes = 0;
+    uint64_t tx_filtered = 0;   // dropped by allow_out/block_out
+    uint64_t tx_dropped = 0;    // transmit queue full, link down, or a write error
+    uint64_t tx_errors = 0;     // hard write errors (ICMP unreachable, EIO, ...)
+
+    EndpointStats& operator+=(const EndpointStats& o);
+};
+
+/// Allow/block lists; an empty allow list allows everything, block wins.
+class MessageFilter {
+public:
+    explicit MessageFilter(const MessageFilterConfig& config) : config_(config) {}
+    bool passes(uint32_t msgid) const;
+    bool empty() const { return config_.allow.empty() && config_.block.empty(); }
+
+private:
+    const MessageFilterConfig& config_;
+};
+
+class Endpoint {
+public:
+    using Ptr = std::unique_ptr<Endpoint>;
+    static constexpr uint32_t kNoId = UINT32_MAX;
+
+    /// `config` must outlive the endpoint (main keeps the Config).
+    Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode);
+    virtual ~Endpoint();
+    Endpoint(const Endpoint&) = delete;
+    Endpoint& operator=(const Endpoint&) = delete;
+
+    const std::string& name() const { return name_; }
+    const EndpointConfig& config() const { return config_; }
+    /// Dense id assigned by the router while registered; kNoId otherwise.
+    uint32_t id() const { return id_; }
+    void set_id(uint32_t id) { id_ = id; }
+    /// A short type word for logs: "udp-server", "udp-peer", "tcp", "uart", ...
+    virtual const char* kind() const = 0;
+
+    /// True when the endpoint can take frames now (a TCP client that is connected, a UART
+    /// that is open). Frames routed to an endpoint that is not ready are dropped and counted.
+    virtual bool ready() const { return true; }
+
+    /// Accepts a frame for transmission if allow_out/block_out let it through. The frame's
+    /// bytes are lent until flush(). Returns true when the endpoint became dirty (needs flush).
+    bool send(const Frame& frame);
+    /// Writes what send() lent and whatever waited; called at the end of each receive batch.
+    void flush();
+    bool has_pending() const { return !tx_.empty(); }
+
+    /// Whether an incoming frame passes allow_in/block_in (counted when it does not).
+    bool accept_in(const Frame& frame);
+
+    /// Counters of this endpoint alone.
+    const EndpointStats& stats() const { return stats_; }
+    /// Counters of this endpoint and every child (peers, connections), present and past.
+    virtual EndpointStats total_stats() const { return stats_; }
+
+protected:
+    /// Datagram endpoints: send each iovec as one datagram; return the count sent or -errno.
+    virtual int write_datagrams(const iovec* frames, size_t count);
+    /// Stream endpoints: write the iovecs; return bytes written or -errno.
+    virtual ssize_t write_stream(const iovec* iov, size_t count);
+    /// Called after a flush: arm EPOLLOUT while `backlog` is true.
+    virtual void on_backlog(bool backlog) { (void)backlog; }
+    /// Called when a stream write failed hard (peer gone, device unplugged).
+    virtual void on_write_error(int err) { (void)err; }
+
+    /// Drops everything queued (reconnects start at a frame boundary), counting it.
+    void clear_tx();
+
+    EndpointStats stats_;
+
+private:
+    const EndpointConfig& config_;
+    std::string name_;
+    uint32_t id_ = kNoId;
+    TxQueue tx_;
+    MessageFilter filter_in_;
+    MessageFilter filter_out_;
+};
+
+/// Builds every endpoint the config declares. Servers bind now (a failure is returned);
+/// UARTs and TCP clients that cannot open yet retry in the background.
+Result<std::vector<Endpoint::Ptr>> make_endpoints(const Config& config, EventLoop& loop,
+                                                  Router& router);
+
+}  // namespace mavbond

@@ -1,0 +1,44 @@
+#include "endpoints/endpoint.h"
+#include "endpoints/tcp_endpoint.h"
+#include "endpoints/uart_endpoint.h"
+#include "endpoints/udp_endpoint.h"
+
+namespace mavbond {
+namespace {
+
+Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& ep, const Config& config,
+                                    EventLoop& loop, Router& router) {
+    auto upcast = [](auto result) -> Result<Endpoint::Ptr> {
+        if (!result)
+            return result.error();
+        return Endpoint::Ptr(std::move(result.value()));
+    };
+    auto policy = config.unknown_messages;
+    switch (ep.type) {
+    case EndpointType::Udp:
+        return ep.mode == EndpointMode::Server ? upcast(UdpServer::open(ep, loop, router, policy))
+                                               : upcast(UdpClient::open(ep, loop, router, policy));
+    case EndpointType::Tcp:
+        return ep.mode == EndpointMode::Server ? upcast(TcpServer::open(ep, loop, router, policy))
+                                               : upcast(TcpClient::open(ep, loop, router, policy));
+    case EndpointType::Uart:
+        return Endpoint::Ptr(UartEndpoint::open(ep, loop, router, policy));
+    }
+    return make_error("unknown endpoint type");
+}
+
+}  // namespace
+
+Result<std::vector<Endpoint::Ptr>> make_endpoints(const Config& config, EventLoop& loop,
+                                                  Router& router) {
+    std::vector<Endpoint::Ptr> endpoints;
+    for (const auto& ep : config.endpoints) {
+        auto e = make_endpoint(ep, config, loop, router);
+        if (!e)
+            return make_error("endpoint '" + ep.name + "': " + e.error().message);
+        endpoints.push_back(std::move(e.value()));
+    }
+    return endpoints;
+}
+
+}  // namespace mavbond

@@ -1,0 +1,23 @@
+// Small socket helpers shared by the UDP and TCP endpoints.
+#pragma once
+
+#include <netinet/in.h>
+
+#include <string>
+
+#include "core/result.h"
+#include "core/unique_fd.h"
+
+namespace mavbond {
+
+/// Resolves an IPv4 host (dotted quad or name) and port. Runs once at startup.
+Result<sockaddr_in> resolve_ipv4(const std::string& host, uint16_t port);
+std::string to_string(const sockaddr_in& addr);
+inline bool same_address(const sockaddr_in& a, const sockaddr_in& b) {
+    return a.sin_addr.s_addr == b.sin_addr.s_addr && a.sin_port == b.sin_port;
+}
+/// A non-blocking, close-on-exec socket.
+Result<UniqueFd> make_socket(int type);
+std::string errno_text(int err);
+
+}  // namespace mavbond

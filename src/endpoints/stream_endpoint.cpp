@@ -1,0 +1,92 @@
+#include "endpoints/stream_endpoint.h"
+
+#include <sys/uio.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include "core/log.h"
+#include "core/router.h"
+#include "endpoints/net.h"
+
+namespace mavbond {
+
+StreamEndpoint::StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
+                               Router& router, UnknownIdPolicy policy)
+    : Endpoint(config, std::move(name), TxQueue::Mode::Stream), loop_(loop), router_(router),
+      parser_(policy, 8192) {}
+
+StreamEndpoint::~StreamEndpoint() = default;
+
+Result<void> StreamEndpoint::attach(UniqueFd fd) {
+    auto w = loop_.watch(fd.get(), EPOLLIN | EPOLLRDHUP,
+                         [this](uint32_t events) { on_events(events); });
+    if (!w)
+        return w.error();
+    fd_ = std::move(fd);
+    watch_ = std::move(w.value());
+    parser_.reset();
+    return {};
+}
+
+void StreamEndpoint::detach() {
+    watch_.reset();
+    fd_.reset();
+    clear_tx();
+    stats_.rx = parser_.counters();
+}
+
+ssize_t StreamEndpoint::write_stream(const iovec* iov, size_t count) {
+    if (!fd_)
+        return -ENOTCONN;
+    ssize_t n = writev(fd_.get(), iov, static_cast<int>(count));
+    return n < 0 ? -errno : n;
+}
+
+void StreamEndpoint::on_backlog(bool backlog) {
+    if (watch_.active())
+        watch_.set_events(EPOLLIN | EPOLLRDHUP | (backlog ? EPOLLOUT : 0u));
+}
+
+void StreamEndpoint::on_write_error(int err) {
+    detach();
+    on_disconnect("write failed: " + errno_text(err));
+}
+
+void StreamEndpoint::on_events(uint32_t events) {
+    if (events & EPOLLOUT)
+        flush();
+    if (fd_ && (events & (EPOLLIN | EPOLLRDHUP | EPOLLHUP | EPOLLERR)))
+        read_frames();
+}
+
+void StreamEndpoint::read_frames() {
+    // A few reads per wakeup at most, so one busy link cannot starve the others.
+    for (int round = 0; round < 4 && fd_; round++) {
+        auto area = parser_.write_area();
+        ssize_t n = read(fd_.get(), area.data(), area.size());
+        if (n > 0) {
+            parser_.commit(static_cast<size_t>(n));
+            TimePoint now = loop_.now();
+            Frame frame;
+            while (parser_.next(frame))
+                router_.handle_frame(*this, frame, now);
+            stats_.rx = parser_.counters();
+            // Frames lent to other endpoints point into the parser: send before reading on.
+            router_.end_batch();
+            if (static_cast<size_t>(n) < area.size())
+                return;
+            continue;
+        }
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+            return;
+        if (n < 0 && errno == EINTR)
+            continue;
+        std::string reason = n == 0 ? "closed by peer" : errno_text(errno);
+        detach();
+        on_disconnect(reason);
+        return;
+    }
+}
+
+}  // namespace mavbond

@@ -1,0 +1,59 @@
+// Byte-stream endpoints (TCP connections, UARTs): large reads into a StreamParser, coalesced
+// writes (writev) from the transmit queue, EPOLLOUT only while a backlog waits.
+#pragma once
+
+#include <string>
+
+#include "core/event_loop.h"
+#include "endpoints/endpoint.h"
+
+namespace mavbond {
+
+/// Exponential backoff between min and max.
+class Backoff {
+public:
+    Backoff(Duration min, Duration max) : min_(min), max_(max), next_(min) {}
+    Duration next() {
+        Duration d = next_;
+        next_ = std::min(next_ * 2, max_);
+        return d;
+    }
+    void reset() { next_ = min_; }
+
+private:
+    Duration min_, max_, next_;
+};
+
+class StreamEndpoint : public Endpoint {
+public:
+    StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, Router& router,
+                   UnknownIdPolicy policy);
+    ~StreamEndpoint() override;
+    bool ready() const override { return fd_.valid(); }
+
+protected:
+    /// Starts reading and writing on a connected/opened fd.
+    Result<void> attach(UniqueFd fd);
+    /// Stops using the fd: closes it, drops what was queued (a new connection starts at a
+    /// frame boundary). Safe inside the endpoint's own handlers.
+    void detach();
+    /// The stream ended or failed: subclasses reconnect, reopen or go away.
+    virtual void on_disconnect(const std::string& reason) = 0;
+
+    ssize_t write_stream(const iovec* iov, size_t count) override;
+    void on_backlog(bool backlog) override;
+    void on_write_error(int err) override;
+
+    EventLoop& loop_;
+    Router& router_;
+
+private:
+    void on_events(uint32_t events);
+    void read_frames();
+
+    UniqueFd fd_;
+    EventLoop::Watch watch_;
+    StreamParser parser_;
+};
+
+}  // namespace mavbond

@@ -1,0 +1,205 @@
+#include "endpoints/tcp_endpoint.h"
+
+#include <netinet/tcp.h>
+#include <sys/socket.h>
+
+#include <algorithm>
+#include <cerrno>
+
+#include "core/log.h"
+#include "core/router.h"
+#include "endpoints/net.h"
+
+namespace mavbond {
+namespace {
+
+void set_nodelay(int fd) {
+    // Telemetry is latency-bound; frames are coalesced by the transmit queue already.
+    int one = 1;
+    setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+}
+
+}  // namespace
+
+// --- TcpConnection -------------------------------------------------------------------------
+
+TcpConnection::TcpConnection(TcpServer& server, const sockaddr_in& peer)
+    : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop_,
+                     server.router_, server.policy_),
+      server_(server) {}
+
+TcpConnection::~TcpConnection() { router_.remove(*this); }
+
+void TcpConnection::on_disconnect(const std::string& reason) {
+    log_info("[tcp:%s] client %s gone: %s", server_.name().c_str(), name().c_str(), reason.c_str());
+    server_.drop_client(*this);
+}
+
+// --- TcpServer -----------------------------------------------------------------------------
+
+Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy) {
+    auto addr = resolve_ipv4(config.host, config.port);
+    if (!addr)
+        return addr.error();
+    auto fd = make_socket(SOCK_STREAM);
+    if (!fd)
+        return fd.error();
+    int one = 1;
+    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
+        return make_error("cannot bind " + to_string(*addr) + ": " + errno_text(errno));
+    if (listen(fd->get(), 16) < 0)
+        return make_error("cannot listen on " + to_string(*addr) + ": " + errno_text(errno));
+    std::unique_ptr<TcpServer> server(
+        new TcpServer(config, loop, router, policy, std::move(fd.value())));
+    auto w = loop.watch(server->fd_.get(), EPOLLIN, [s = server.get()](uint32_t) { s->on_accept(); });
+    if (!w)
+        return w.error();
+    server->watch_ = std::move(w.value());
+    log_info("[tcp:%s] listening on %s", config.name.c_str(), to_string(*addr).c_str());
+    return server;
+}
+
+TcpServer::TcpServer(const EndpointConfig& config, EventLoop& loop, Router& router,
+                     UnknownIdPolicy policy, UniqueFd fd)
+    : Endpoint(config, config.name, TxQueue::Mode::Stream), loop_(loop), router_(router),
+      policy_(policy), fd_(std::move(fd)) {}
+
+TcpServer::~TcpServer() = default;
+
+EndpointStats TcpServer::total_stats() const {
+    EndpointStats total = stats_;
+    total += retired_;
+    for (const auto& c : clients_)
+        total += c->stats();
+    return total;
+}
+
+void TcpServer::on_accept() {
+    for (;;) {
+        sockaddr_in peer{};
+        socklen_t len = sizeof peer;
+        UniqueFd fd(accept4(fd_.get(), reinterpret_cast<sockaddr*>(&peer), &len,
+                            SOCK_NONBLOCK | SOCK_CLOEXEC));
+        if (!fd) {
+            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
+                log_warning("[tcp:%s] accept: %s", name().c_str(), errno_text(errno).c_str());
+            return;
+        }
+        if (clients_.size() >= kMaxClients) {
+            log_warning("[tcp:%s] %zu clients already: refusing %s", name().c_str(), kMaxClients,
+                        to_string(peer).c_str());
+            continue;  // fd closes here
+        }
+        set_nodelay(fd.get());
+        auto client = std::make_unique<TcpConnection>(*this, peer);
+        if (auto r = client->start(std::move(fd)); !r) {
+            log_warning("[tcp:%s] %s", name().c_str(), r.error().message.c_str());
+            continue;
+        }
+        router_.add(*client);
+        log_info("[tcp:%s] client %s connected", name().c_str(), to_string(peer).c_str());
+        clients_.push_back(std::move(client));
+    }
+}
+
+void TcpServer::drop_client(TcpConnection& client) {
+    router_.remove(client);
+    loop_.defer([this, target = &client] {
+        auto it = std::find_if(clients_.begin(), clients_.end(),
+                               [target](const auto& c) { return c.get() == target; });
+        if (it != clients_.end()) {
+            retired_ += (*it)->stats();
+            clients_.erase(it);
+        }
+    });
+}
+
+// --- TcpClient -----------------------------------------------------------------------------
+
+Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy) {
+    auto addr = resolve_ipv4(config.host, config.port);
+    if (!addr)
+        return addr.error();
+    std::unique_ptr<TcpClient> client(new TcpClient(config, loop, router, policy, *addr));
+    router.add(*client);
+    client->connect_now();
+    return client;
+}
+
+TcpClient::TcpClient(const EndpointConfig& config, EventLoop& loop, Router& router,
+                     UnknownIdPolicy policy, const sockaddr_in& addr)
+    : StreamEndpoint(config, config.name, loop, router, policy), addr_(addr),
+      backoff_(config.reconnect_min, config.reconnect_max) {}
+
+TcpClient::~TcpClient() { router_.remove(*this); }
+
+void TcpClient::connect_now() {
+    auto fd = make_socket(SOCK_STREAM);
+    if (!fd) {
+        retry_later(fd.error().message);
+        return;
+    }
+    int rc = connect(fd->get(), reinterpret_cast<const sockaddr*>(&addr_), sizeof addr_);
+    if (rc < 0 && errno != EINPROGRESS) {
+        retry_later(errno_text(errno));
+        return;
+    }
+    connecting_fd_ = std::move(fd.value());
+    // Completion (or failure) of a non-blocking connect shows as writability.
+    auto w = loop_.watch(connecting_fd_.get(), EPOLLOUT,
+                         [this](uint32_t events) { on_connecting(events); });
+    if (!w) {
+        connecting_fd_.reset();
+        retry_later(w.error().message);
+        return;
+    }
+    connecting_watch_ = std::move(w.value());
+}
+
+void TcpClient::on_connecting(uint32_t) {
+    int err = 0;
+    socklen_t len = sizeof err;
+    getsockopt(connecting_fd_.get(), SOL_SOCKET, SO_ERROR, &err, &len);
+    connecting_watch_.reset();
+    UniqueFd fd = std::move(connecting_fd_);
+    if (err != 0) {
+        retry_later(errno_text(err));
+        return;
+    }
+    set_nodelay(fd.get());
+    if (auto r = attach(std::move(fd)); !r) {
+        retry_later(r.error().message);
+        return;
+    }
+    backoff_.reset();
+    failing_logged_ = false;
+    was_connected_ = true;
+    log_notice("[tcp:%s] connected to %s", name().c_str(), to_string(addr_).c_str());
+}
+
+void TcpClient::retry_later(const std::string& reason) {
+    Duration delay = backoff_.next();
+    // One line per state change, not one per attempt.
+    if (!failing_logged_) {
+        log_warning("[tcp:%s] cannot connect to %s: %s; retrying with backoff up to %.1fs",
+                    name().c_str(), to_string(addr_).c_str(), reason.c_str(),
+                    std::chrono::duration<double>(config().reconnect_max).count());
+        failing_logged_ = true;
+    }
+    retry_timer_ = loop_.schedule(delay, [this] {
+        connect_now();
+        return Duration::zero();
+    });
+}
+
+void TcpClient::on_disconnect(const std::string& reason) {
+    log_warning("[tcp:%s] connection to %s lost: %s", name().c_str(), to_string(addr_).c_str(),
+                reason.c_str());
+    failing_logged_ = true;
+    retry_later(reason);
+}
+
+}  // namespace mavbond

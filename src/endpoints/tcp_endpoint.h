@@ -1,0 +1,84 @@
+// TCP endpoints. A server accepts clients, each an endpoint (and route target) until it
+// disconnects. A client connects without blocking the loop and reconnects with backoff.
+#pragma once
+
+#include <netinet/in.h>
+
+#include <memory>
+#include <vector>
+
+#include "endpoints/stream_endpoint.h"
+
+namespace mavbond {
+
+class TcpServer;
+
+/// One accepted client of a TcpServer.
+class TcpConnection : public StreamEndpoint {
+public:
+    TcpConnection(TcpServer& server, const sockaddr_in& peer);
+    ~TcpConnection() override;
+    const char* kind() const override { return "tcp-conn"; }
+    Result<void> start(UniqueFd fd) { return attach(std::move(fd)); }
+
+protected:
+    void on_disconnect(const std::string& reason) override;
+
+private:
+    TcpServer& server_;
+};
+
+class TcpServer : public Endpoint {
+public:
+    static Result<std::unique_ptr<TcpServer>> open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy);
+    ~TcpServer() override;
+    const char* kind() const override { return "tcp-server"; }
+    EndpointStats total_stats() const override;
+    size_t client_count() const { return clients_.size(); }
+
+private:
+    friend class TcpConnection;
+    TcpServer(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+              UniqueFd fd);
+    void on_accept();
+    /// Forgets a client after the current dispatch round (it may be inside its own handler).
+    void drop_client(TcpConnection& client);
+
+    static constexpr size_t kMaxClients = 32;
+    EventLoop& loop_;
+    Router& router_;
+    UnknownIdPolicy policy_;
+    UniqueFd fd_;
+    EventLoop::Watch watch_;
+    std::vector<std::unique_ptr<TcpConnection>> clients_;
+    EndpointStats retired_;
+};
+
+class TcpClient : public StreamEndpoint {
+public:
+    static Result<std::unique_ptr<TcpClient>> open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy);
+    ~TcpClient() override;
+    const char* kind() const override { return "tcp-client"; }
+
+protected:
+    void on_disconnect(const std::string& reason) override;
+
+private:
+    TcpClient(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+              const sockaddr_in& addr);
+    void connect_now();
+    void on_connecting(uint32_t events);
+    void retry_later(const std::string& reason);
+
+    sockaddr_in addr_;
+    Backoff backoff_;
+    UniqueFd connecting_fd_;
+    EventLoop::Watch connecting_watch_;
+    EventLoop::Timer retry_timer_;
+    bool was_connected_ = false;
+    bool failing_logged_ = false;
+};
+
+}  // namespace mavbond

@@ -1,0 +1,95 @@
+#include "endpoints/uart_endpoint.h"
+
+// termios2 (any baud rate via BOTHER) lives in the kernel's header, which clashes with
+// <termios.h>: this file uses the kernel one only.
+#include <asm/termbits.h>
+#include <fcntl.h>
+#include <sys/ioctl.h>
+
+#include <cerrno>
+
+#include "core/log.h"
+#include "core/router.h"
+#include "endpoints/net.h"
+
+namespace mavbond {
+
+Result<UniqueFd> open_serial(const std::string& device, uint32_t baud, bool flow_control) {
+    UniqueFd fd(::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC));
+    if (!fd)
+        return make_error("cannot open " + device + ": " + errno_text(errno));
+    termios2 tio{};
+    if (ioctl(fd.get(), TCGETS2, &tio) < 0)
+        return make_error(device + " is not a serial port: " + errno_text(errno));
+    // Raw mode, as cfmakeraw does, plus 8N1 and the receiver on.
+    tio.c_iflag &= ~static_cast<tcflag_t>(IGNBRK | BRKINT | PARMRK | ISTRIP | INLCR | IGNCR |
+                                          ICRNL | IXON | IXOFF | IXANY);
+    tio.c_oflag &= ~static_cast<tcflag_t>(OPOST);
+    tio.c_lflag &= ~static_cast<tcflag_t>(ECHO | ECHONL | ICANON | ISIG | IEXTEN);
+    tio.c_cflag &= ~static_cast<tcflag_t>(CSIZE | PARENB | CSTOPB | CBAUD | CRTSCTS);
+    tio.c_cflag |= CS8 | CLOCAL | CREAD | BOTHER;
+    if (flow_control)
+        tio.c_cflag |= CRTSCTS;
+    tio.c_ispeed = baud;
+    tio.c_ospeed = baud;
+    // VMIN 1: a non-blocking read with nothing to read says EAGAIN (VMIN 0 would return 0,
+    // which looks like a hangup).
+    tio.c_cc[VMIN] = 1;
+    tio.c_cc[VTIME] = 0;
+    if (ioctl(fd.get(), TCSETS2, &tio) < 0)
+        return make_error("cannot set " + std::to_string(baud) + " baud on " + device + ": " +
+                          errno_text(errno));
+    ioctl(fd.get(), TCFLSH, TCIOFLUSH);
+    return fd;
+}
+
+std::unique_ptr<UartEndpoint> UartEndpoint::open(const EndpointConfig& config, EventLoop& loop,
+                                                 Router& router, UnknownIdPolicy policy) {
+    std::unique_ptr<UartEndpoint> uart(new UartEndpoint(config, loop, router, policy));
+    router.add(*uart);
+    uart->try_open();
+    return uart;
+}
+
+UartEndpoint::UartEndpoint(const EndpointConfig& config, EventLoop& loop, Router& router,
+                           UnknownIdPolicy policy)
+    : StreamEndpoint(config, config.name, loop, router, policy),
+      backoff_(config.reconnect_min, config.reconnect_max) {}
+
+UartEndpoint::~UartEndpoint() { router_.remove(*this); }
+
+void UartEndpoint::try_open() {
+    auto fd = open_serial(config().device, config().baud, config().flow_control);
+    if (!fd) {
+        retry_later(fd.error().message);
+        return;
+    }
+    if (auto r = attach(std::move(fd.value())); !r) {
+        retry_later(r.error().message);
+        return;
+    }
+    backoff_.reset();
+    failing_logged_ = false;
+    log_notice("[uart:%s] %s open at %u baud%s", name().c_str(), config().device.c_str(),
+               config().baud, config().flow_control ? " with RTS/CTS" : "");
+}
+
+void UartEndpoint::retry_later(const std::string& reason) {
+    if (!failing_logged_) {
+        log_warning("[uart:%s] %s; retrying with backoff up to %.1fs", name().c_str(),
+                    reason.c_str(), std::chrono::duration<double>(config().reconnect_max).count());
+        failing_logged_ = true;
+    }
+    retry_timer_ = loop_.schedule(backoff_.next(), [this] {
+        try_open();
+        return Duration::zero();
+    });
+}
+
+void UartEndpoint::on_disconnect(const std::string& reason) {
+    log_warning("[uart:%s] %s lost: %s", name().c_str(), config().device.c_str(), reason.c_str());
+    failing_logged_ = true;
+    retry_later(reason);
+}
+
+}  // namespace mavbond

@@ -1,0 +1,245 @@
+#include "endpoints/udp_endpoint.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+
+#include "core/log.h"
+#include "core/router.h"
+#include "endpoints/net.h"
+
+namespace mavbond {
+
+// --- DatagramBatch -------------------------------------------------------------------------
+
+DatagramBatch::DatagramBatch() : buffers_(kCount) {
+    for (size_t i = 0; i < kCount; i++) {
+        iovs_[i] = iovec{buffers_[i].data(), kSize};
+        msgs_[i].msg_hdr.msg_iov = &iovs_[i];
+        msgs_[i].msg_hdr.msg_iovlen = 1;
+        msgs_[i].msg_hdr.msg_name = &addrs_[i];
+    }
+}
+
+int DatagramBatch::receive(int fd) {
+    for (size_t i = 0; i < kCount; i++) {
+        msgs_[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
+        msgs_[i].msg_hdr.msg_flags = 0;
+    }
+    int n = recvmmsg(fd, msgs_.data(), kCount, MSG_DONTWAIT, nullptr);
+    if (n < 0)
+        return errno == EAGAIN || errno == EWOULDBLOCK ? 0 : -errno;
+    return n;
+}
+
+int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in* to) {
+    std::array<mmsghdr, 64> msgs{};
+    count = std::min(count, msgs.size());
+    for (size_t i = 0; i < count; i++) {
+        msgs[i].msg_hdr.msg_iov = const_cast<iovec*>(&frames[i]);
+        msgs[i].msg_hdr.msg_iovlen = 1;
+        if (to) {
+            msgs[i].msg_hdr.msg_name = const_cast<sockaddr_in*>(to);
+            msgs[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
+        }
+    }
+    int n = sendmmsg(fd, msgs.data(), static_cast<unsigned>(count), MSG_DONTWAIT | MSG_NOSIGNAL);
+    return n < 0 ? -errno : n;
+}
+
+namespace {
+
+/// Parses one datagram and routes its frames on behalf of `from`.
+void route_datagram(std::span<const uint8_t> data, Endpoint& from, EndpointStats& stats,
+                    UnknownIdPolicy policy, Router& router, TimePoint now) {
+    DatagramParser parser(data, policy, stats.rx);
+    Frame frame;
+    while (parser.next(frame))
+        router.handle_frame(from, frame, now);
+}
+
+}  // namespace
+
+// --- UdpPeer -------------------------------------------------------------------------------
+
+UdpPeer::UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now)
+    : Endpoint(server.config(), server.name() + "@" + to_string(addr), TxQueue::Mode::Datagram),
+      server_(server), addr_(addr), last_heard_(now) {}
+
+int UdpPeer::write_datagrams(const iovec* frames, size_t count) {
+    return send_datagrams(server_.fd(), frames, count, &addr_);
+}
+
+void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
+
+// --- UdpServer -----------------------------------------------------------------------------
+
+Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy) {
+    auto addr = resolve_ipv4(config.host, config.port);
+    if (!addr)
+        return addr.error();
+    auto fd = make_socket(SOCK_DGRAM);
+    if (!fd)
+        return fd.error();
+    int one = 1;
+    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
+        return make_error("cannot bind " + to_string(*addr) + ": " + errno_text(errno));
+    std::unique_ptr<UdpServer> server(
+        new UdpServer(config, loop, router, policy, std::move(fd.value())));
+    auto w = loop.watch(server->fd_.get(), EPOLLIN,
+                        [s = server.get()](uint32_t events) { s->on_events(events); });
+    if (!w)
+        return w.error();
+    server->watch_ = std::move(w.value());
+    auto period = std::clamp<Duration>(config.peer_timeout / 4, milliseconds(100), seconds(5));
+    server->expiry_timer_ = loop.schedule(period, [s = server.get(), period] {
+        s->forget_silent_peers();
+        return period;
+    });
+    log_info("[udp:%s] listening on %s", config.name.c_str(), to_string(*addr).c_str());
+    return server;
+}
+
+UdpServer::UdpServer(const EndpointConfig& config, EventLoop& loop, Router& router,
+                     UnknownIdPolicy policy, UniqueFd fd)
+    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
+      policy_(policy), fd_(std::move(fd)) {}
+
+UdpServer::~UdpServer() {
+    for (auto& peer : peers_)
+        router_.remove(*peer);
+}
+
+EndpointStats UdpServer::total_stats() const {
+    EndpointStats total = stats_;
+    total += retired_;
+    for (const auto& peer : peers_)
+        total += peer->stats();
+    return total;
+}
+
+UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
+    for (auto& peer : peers_) {
+        if (same_address(peer->address(), addr))
+            return peer.get();
+    }
+    if (peers_.size() >= kMaxPeers) {
+        if (refused_peers_++ == 0)
+            log_warning("[udp:%s] %zu peers already: ignoring new peer %s", name().c_str(),
+                        kMaxPeers, to_string(addr).c_str());
+        return nullptr;
+    }
+    peers_.push_back(std::make_unique<UdpPeer>(*this, addr, now));
+    router_.add(*peers_.back());
+    log_info("[udp:%s] new peer %s", name().c_str(), to_string(addr).c_str());
+    return peers_.back().get();
+}
+
+void UdpServer::forget_silent_peers() {
+    TimePoint now = loop_.now();
+    auto silent = [&](const std::unique_ptr<UdpPeer>& peer) {
+        if (now - peer->last_heard() <= config().peer_timeout)
+            return false;
+        log_info("[udp:%s] peer %s silent for %.1fs: forgotten", name().c_str(),
+                 to_string(peer->address()).c_str(),
+                 std::chrono::duration<double>(now - peer->last_heard()).count());
+        router_.remove(*peer);
+        retired_ += peer->stats();
+        return true;
+    };
+    peers_.erase(std::remove_if(peers_.begin(), peers_.end(), silent), peers_.end());
+    update_write_interest();
+}
+
+void UdpServer::update_write_interest() {
+    bool pending = std::any_of(peers_.begin(), peers_.end(),
+                               [](const auto& p) { return p->has_pending(); });
+    watch_.set_events(pending ? EPOLLIN | EPOLLOUT : EPOLLIN);
+}
+
+void UdpServer::on_events(uint32_t events) {
+    if (events & EPOLLOUT) {
+        for (auto& peer : peers_)
+            peer->flush();
+    }
+    if (!(events & (EPOLLIN | EPOLLERR)))
+        return;
+    int n = batch_.receive(fd_.get());
+    if (n < 0) {
+        // ICMP errors surface here for a peer that went away: nothing to do but go on.
+        log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
+        return;
+    }
+    TimePoint now = loop_.now();
+    for (int i = 0; i < n; i++) {
+        auto idx = static_cast<size_t>(i);
+        UdpPeer* peer = peer_for(batch_.from(idx), now);
+        if (!peer) {
+            stats_.rx.garbage_bytes += batch_.data(idx).size();
+            continue;
+        }
+        peer->heard(now);
+        route_datagram(batch_.data(idx), *peer, peer->mutable_stats(), policy_, router_, now);
+    }
+    // The frames lent to other endpoints point into batch_: send them before it is reused.
+    router_.end_batch();
+}
+
+// --- UdpClient -----------------------------------------------------------------------------
+
+Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy) {
+    auto addr = resolve_ipv4(config.host, config.port);
+    if (!addr)
+        return addr.error();
+    auto fd = make_socket(SOCK_DGRAM);
+    if (!fd)
+        return fd.error();
+    // Connected: the kernel delivers only the peer's replies, and send needs no address.
+    if (connect(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
+        return make_error("cannot connect to " + to_string(*addr) + ": " + errno_text(errno));
+    std::unique_ptr<UdpClient> client(
+        new UdpClient(config, loop, router, policy, std::move(fd.value()), *addr));
+    auto w = loop.watch(client->fd_.get(), EPOLLIN,
+                        [c = client.get()](uint32_t events) { c->on_events(events); });
+    if (!w)
+        return w.error();
+    client->watch_ = std::move(w.value());
+    router.add(*client);
+    log_info("[udp:%s] sending to %s", config.name.c_str(), to_string(*addr).c_str());
+    return client;
+}
+
+UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router,
+                     UnknownIdPolicy policy, UniqueFd fd, const sockaddr_in& addr)
+    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
+      policy_(policy), fd_(std::move(fd)), addr_(addr) {}
+
+UdpClient::~UdpClient() { router_.remove(*this); }
+
+int UdpClient::write_datagrams(const iovec* frames, size_t count) {
+    return send_datagrams(fd_.get(), frames, count, nullptr);
+}
+
+void UdpClient::on_backlog(bool backlog) { watch_.set_events(backlog ? EPOLLIN | EPOLLOUT : EPOLLIN); }
+
+void UdpClient::on_events(uint32_t events) {
+    if (events & EPOLLOUT)
+        flush();
+    if (!(events & (EPOLLIN | EPOLLERR)))
+        return;
+    int n = batch_.receive(fd_.get());
+    if (n < 0) {
+        // ECONNREFUSED: the peer's port is closed (ICMP port unreachable). Keep going.
+        log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
+        return;
+    }
+    TimePoint now = loop_.now();
+    for (int i = 0; i < n; i++)
+        route_datagram(batch_.data(static_cast<size_t>(i)), *this, stats_, policy_, router_, now);
+    router_.end_batch();
+}
+
+}  // namespace mavbond

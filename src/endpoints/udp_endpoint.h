@@ -1,0 +1,118 @@
+// UDP endpoints. A server binds an address and learns its peers from what they send: each
+// peer is a route target of its own, forgotten after peer_timeout of silence. A client sends
+// to a fixed address and accepts replies from it only (a connected socket).
+#pragma once
+
+#include <sys/socket.h>
+#include <netinet/in.h>
+
+#include <array>
+#include <memory>
+#include <vector>
+
+#include "core/event_loop.h"
+#include "endpoints/endpoint.h"
+
+namespace mavbond {
+
+/// A batch of datagrams received with one recvmmsg.
+class DatagramBatch {
+public:
+    static constexpr size_t kCount = 32;
+    static constexpr size_t kSize = 2048;
+    DatagramBatch();
+    /// Receives up to kCount datagrams; returns how many, 0 when none, -errno on error.
+    int receive(int fd);
+    std::span<const uint8_t> data(size_t i) const { return {buffers_[i].data(), msgs_[i].msg_len}; }
+    const sockaddr_in& from(size_t i) const { return addrs_[i]; }
+    bool truncated(size_t i) const { return (msgs_[i].msg_hdr.msg_flags & MSG_TRUNC) != 0; }
+
+private:
+    std::vector<std::array<uint8_t, kSize>> buffers_;
+    std::array<mmsghdr, kCount> msgs_{};
+    std::array<iovec, kCount> iovs_{};
+    std::array<sockaddr_in, kCount> addrs_{};
+};
+
+class UdpServer;
+
+class UdpPeer : public Endpoint {
+public:
+    UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now);
+    const char* kind() const override { return "udp-peer"; }
+    const sockaddr_in& address() const { return addr_; }
+    TimePoint last_heard() const { return last_heard_; }
+    void heard(TimePoint now) { last_heard_ = now; }
+    EndpointStats& mutable_stats() { return stats_; }
+
+protected:
+    int write_datagrams(const iovec* frames, size_t count) override;
+    void on_backlog(bool backlog) override;
+
+private:
+    UdpServer& server_;
+    sockaddr_in addr_;
+    TimePoint last_heard_;
+};
+
+class UdpServer : public Endpoint {
+public:
+    static Result<std::unique_ptr<UdpServer>> open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy);
+    ~UdpServer() override;
+    const char* kind() const override { return "udp-server"; }
+    EndpointStats total_stats() const override;
+    size_t peer_count() const { return peers_.size(); }
+    int fd() const { return fd_.get(); }
+    /// Watches for EPOLLOUT while some peer has a backlog.
+    void update_write_interest();
+
+private:
+    UdpServer(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+              UniqueFd fd);
+    void on_events(uint32_t events);
+    UdpPeer* peer_for(const sockaddr_in& addr, TimePoint now);
+    void forget_silent_peers();
+
+    static constexpr size_t kMaxPeers = 64;
+    EventLoop& loop_;
+    Router& router_;
+    UnknownIdPolicy policy_;
+    UniqueFd fd_;
+    EventLoop::Watch watch_;
+    EventLoop::Timer expiry_timer_;
+    DatagramBatch batch_;
+    std::vector<std::unique_ptr<UdpPeer>> peers_;
+    EndpointStats retired_;     // counters of forgotten peers, so totals never go back
+    uint64_t refused_peers_ = 0;
+};
+
+class UdpClient : public Endpoint {
+public:
+    static Result<std::unique_ptr<UdpClient>> open(const EndpointConfig& config, EventLoop& loop,
+                                                   Router& router, UnknownIdPolicy policy);
+    ~UdpClient() override;
+    const char* kind() const override { return "udp-client"; }
+
+protected:
+    int write_datagrams(const iovec* frames, size_t count) override;
+    void on_backlog(bool backlog) override;
+
+private:
+    UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+              UniqueFd fd, const sockaddr_in& addr);
+    void on_events(uint32_t events);
+
+    EventLoop& loop_;
+    Router& router_;
+    UnknownIdPolicy policy_;
+    UniqueFd fd_;
+    sockaddr_in addr_;
+    EventLoop::Watch watch_;
+    DatagramBatch batch_;
+};
+
+/// sendmmsg of one datagram per iovec (to `to`, or to the connected peer when null).
+int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in* to);
+
+}  // namespace mavbond
