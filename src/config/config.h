@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/clock.h"
@@ -37,7 +38,7 @@ struct EndpointConfig {
     std::string name;
     EndpointType type = EndpointType::Udp;
     EndpointMode mode = EndpointMode::Server;
-    std::string host;          // udp/tcp: IPv4 address or name ("0.0.0.0", "127.0.0.1")
+    std::string host;          // udp/tcp: dotted-quad IPv4 ("0.0.0.0"); "localhost" -> "127.0.0.1"
     uint16_t port = 0;         // udp/tcp
     std::string device;        // uart
     uint32_t baud = 57600;     // uart: any rate, standard or not
@@ -70,7 +71,8 @@ struct FilterConfig {
         std::string value;               // scalar text, or a flow-style sequence "[a, b]"
         std::vector<std::string> items;  // sequence items when the value is a sequence
         bool is_sequence = false;
-        SourceMark mark;
+        SourceMark mark;                 // the key
+        SourceMark value_mark;           // the value (the key's mark when the value is empty)
     };
     std::vector<Option> options;
     SourceMark mark;
@@ -94,7 +96,8 @@ Result<Config> load_config(const std::string& path);
 /// Same, from text (for tests); `name` stands in for the file name in messages.
 Result<Config> parse_config(const std::string& text, const std::string& name);
 
-/// "250ms", "2s", "1.5s", "1m" -> Duration.
+/// "250ms", "2s", "1.5s", "1m" -> Duration. Units: ns, us, ms, s, m; a unit is required, no
+/// sign, no spaces, at most 9 fraction digits and no finer than 1ns; nullopt otherwise.
 std::optional<Duration> parse_duration(std::string_view text);
 
 }  // namespace mavbond

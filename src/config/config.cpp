@@ -1,0 +1,759 @@
+// YAML config -> typed structs. yaml-cpp throws; its exceptions are caught here and nowhere
+// else, and turned into "file:line:column: message" errors.
+//
+// Inside this file a validation failure is thrown as ConfigError (private to this file) so the
+// many small checks stay one line each; parse_config() catches it and returns it as a value.
+// Nothing is thrown out of load_config()/parse_config().
+#include "config/config.h"
+
+#include <arpa/inet.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cerrno>
+#include <charconv>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <set>
+#include <utility>
+
+#include "mavlink/frame.h"
+#include "mavlink/message_table.h"
+
+namespace mavbond {
+namespace {
+
+constexpr uint32_t kMaxMessageId = 0xFFFFFF;           // MAVLink v2 msgid is 24 bits
+constexpr size_t kMinTxQueueBytes = kMaxFrameLen;      // one largest frame (280 bytes)
+constexpr size_t kMaxTxQueueBytes = 64u * 1024 * 1024; // a typo guard, far above any real need
+constexpr std::string_view kDurationExamples = "e.g. 250ms, 2s, 1.5s, 1m";
+
+struct ConfigError {
+    std::string message;
+};
+
+bool is_name_char(char c) {
+    return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') ||
+           c == '_' || c == '.' || c == '-';
+}
+
+bool is_plugin_char(char c) {
+    return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_';
+}
+
+bool all_digits(std::string_view s) {
+    if (s.empty())
+        return false;
+    for (char c : s) {
+        if (c < '0' || c > '9')
+            return false;
+    }
+    return true;
+}
+
+/// Parses a string of decimal digits; nullopt on anything else or overflow.
+std::optional<uint64_t> parse_u64(std::string_view s) {
+    if (!all_digits(s))
+        return std::nullopt;
+    uint64_t v = 0;
+    auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+    if (ec != std::errc() || ptr != s.data() + s.size())
+        return std::nullopt;
+    return v;
+}
+
+std::string format_duration(Duration d) {
+    auto ns = d.count();
+    if (ns % 1'000'000'000 == 0)
+        return std::to_string(ns / 1'000'000'000) + "s";
+    if (ns % 1'000'000 == 0)
+        return std::to_string(ns / 1'000'000) + "ms";
+    if (ns % 1'000 == 0)
+        return std::to_string(ns / 1'000) + "us";
+    return std::to_string(ns) + "ns";
+}
+
+const char* kind_name(const YAML::Node& node) {
+    switch (node.Type()) {
+    case YAML::NodeType::Null: return "nothing";
+    case YAML::NodeType::Scalar: return "a scalar";
+    case YAML::NodeType::Sequence: return "a sequence";
+    case YAML::NodeType::Map: return "a map";
+    case YAML::NodeType::Undefined: return "nothing";
+    }
+    return "?";
+}
+
+/// One key/value pair of a YAML map, in document order.
+struct Entry {
+    YAML::Node key;
+    YAML::Node value;
+    std::string name;  // the key's text ("" if the key is not a scalar)
+};
+
+/// The pairs of a map. yaml-cpp keeps duplicate keys as separate pairs, so iterating is the
+/// only way to see them; find() returns the first.
+struct MapView {
+    std::vector<Entry> entries;
+
+    const Entry* find(std::string_view name) const {
+        for (const auto& e : entries) {
+            if (e.key.IsScalar() && e.name == name)
+                return &e;
+        }
+        return nullptr;
+    }
+};
+
+MapView make_view(const YAML::Node& map) {
+    MapView view;
+    for (auto it = map.begin(); it != map.end(); ++it) {
+        Entry e{it->first, it->second, it->first.IsScalar() ? it->first.Scalar() : ""};
+        view.entries.push_back(std::move(e));
+    }
+    return view;
+}
+
+class Parser {
+public:
+    explicit Parser(std::string name) : name_(std::move(name)) {}
+
+    Config parse(const YAML::Node& root);
+
+private:
+    struct BondRef {
+        size_t endpoint;   // index into config_.endpoints
+        YAML::Mark mark;   // the bond value
+    };
+    struct ScopeRef {
+        std::string filter_ctx;
+        std::string key;   // "bonds" or "endpoints"
+        std::string name;
+        YAML::Mark mark;
+    };
+
+    [[noreturn]] void fail(const YAML::Mark& mark, const std::string& message) const {
+        int line = mark.is_null() ? 1 : mark.line + 1;
+        int column = mark.is_null() ? 1 : mark.column + 1;
+        throw ConfigError{name_ + ":" + std::to_string(line) + ":" + std::to_string(column) +
+                          ": " + message};
+    }
+
+    SourceMark source_mark(const YAML::Mark& mark) const {
+        return SourceMark{name_, mark.is_null() ? 1 : mark.line + 1,
+                          mark.is_null() ? 1 : mark.column + 1};
+    }
+
+    /// A value's mark; a missing value (`key:` then newline) has a mark pointing past it, so
+    /// the key's mark is used instead.
+    static YAML::Mark value_mark(const Entry& e) {
+        return e.value.IsNull() || e.value.Mark().is_null() ? e.key.Mark() : e.value.Mark();
+    }
+
+    void check_keys(const MapView& view, const std::string& ctx,
+                    const std::set<std::string_view>* allowed) const;
+    const std::string& scalar(const Entry& e, const std::string& ctx) const;
+    std::string required_scalar(const MapView& view, const YAML::Node& map,
+                                std::string_view key, const std::string& ctx) const;
+    Duration duration(const Entry& e, const std::string& ctx, bool positive) const;
+    bool boolean(const Entry& e, const std::string& ctx) const;
+    std::vector<uint32_t> message_ids(const Entry& e, const std::string& ctx) const;
+    std::vector<std::pair<std::string, YAML::Mark>> name_list(const Entry& e,
+                                                              const std::string& ctx) const;
+    template <typename T>
+    T choice(const Entry& e, const std::string& ctx,
+             std::initializer_list<std::pair<std::string_view, T>> allowed) const;
+    const YAML::Node& sequence(const Entry& e, const std::string& ctx, bool required) const;
+
+    void parse_endpoint(const YAML::Node& node, size_t index);
+    void parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const;
+    void parse_bond(const YAML::Node& node, size_t index);
+    void parse_filter(const YAML::Node& node, size_t index);
+    void cross_check();
+
+    std::string name_;
+    Config config_;
+    std::map<std::string, YAML::Mark> endpoint_names_;
+    std::map<std::string, YAML::Mark> bond_names_;
+    std::vector<BondRef> bond_refs_;
+    std::vector<ScopeRef> scope_refs_;
+};
+
+void Parser::check_keys(const MapView& view, const std::string& ctx,
+                        const std::set<std::string_view>* allowed) const {
+    std::set<std::string_view> seen;
+    for (const auto& e : view.entries) {
+        if (!e.key.IsScalar())
+            fail(e.key.Mark(), ctx + "a key must be a plain word, not " + kind_name(e.key));
+        if (!seen.insert(e.name).second)
+            fail(e.key.Mark(), ctx + "duplicate key '" + e.name + "'");
+        if (allowed && !allowed->count(e.name))
+            fail(e.key.Mark(), ctx + "unknown key '" + e.name + "'");
+    }
+}
+
+const std::string& Parser::scalar(const Entry& e, const std::string& ctx) const {
+    if (e.value.IsNull())
+        fail(value_mark(e), ctx + "'" + e.name + "' needs a value");
+    if (!e.value.IsScalar())
+        fail(value_mark(e), ctx + "'" + e.name + "' must be a single value, not " +
+                                kind_name(e.value));
+    return e.value.Scalar();
+}
+
+std::string Parser::required_scalar(const MapView& view, const YAML::Node& map,
+                                    std::string_view key, const std::string& ctx) const {
+    const Entry* e = view.find(key);
+    if (!e)
+        fail(map.Mark(), ctx + "missing required key '" + std::string(key) + "'");
+    std::string text = scalar(*e, ctx);
+    if (text.empty())
+        fail(value_mark(*e), ctx + "'" + e->name + "' must not be empty");
+    return text;
+}
+
+Duration Parser::duration(const Entry& e, const std::string& ctx, bool positive) const {
+    const std::string& text = scalar(e, ctx);
+    std::string where = ctx + "'" + e.name + "': ";
+    bool bare_number = !text.empty();
+    for (char c : text) {
+        if (!((c >= '0' && c <= '9') || c == '.'))
+            bare_number = false;
+    }
+    if (bare_number)
+        fail(value_mark(e), where + "duration '" + text + "' needs a unit (ns, us, ms, s, m)");
+    auto d = parse_duration(text);
+    if (!d)
+        fail(value_mark(e), where + "invalid duration '" + text + "' (" +
+                                std::string(kDurationExamples) + ")");
+    if (positive && d->count() <= 0)
+        fail(value_mark(e), where + "duration must be greater than 0");
+    return *d;
+}
+
+bool Parser::boolean(const Entry& e, const std::string& ctx) const {
+    const std::string& text = scalar(e, ctx);
+    if (text == "true" || text == "True" || text == "TRUE")
+        return true;
+    if (text == "false" || text == "False" || text == "FALSE")
+        return false;
+    fail(value_mark(e), ctx + "'" + e.name + "' must be true or false, not '" + text + "'");
+}
+
+template <typename T>
+T Parser::choice(const Entry& e, const std::string& ctx,
+                 std::initializer_list<std::pair<std::string_view, T>> allowed) const {
+    const std::string& text = scalar(e, ctx);
+    std::string list;
+    for (const auto& [word, value] : allowed) {
+        if (text == word)
+            return value;
+        list += (list.empty() ? "" : ", ") + std::string(word);
+    }
+    fail(value_mark(e), ctx + "invalid " + e.name + " '" + text + "' (allowed: " + list + ")");
+}
+
+const YAML::Node& Parser::sequence(const Entry& e, const std::string& ctx, bool required) const {
+    if (e.value.IsNull() && !required)
+        return e.value;
+    if (!e.value.IsSequence())
+        fail(value_mark(e), ctx + "'" + e.name + "' must be a sequence, not " +
+                                kind_name(e.value));
+    return e.value;
+}
+
+std::vector<uint32_t> Parser::message_ids(const Entry& e, const std::string& ctx) const {
+    std::vector<uint32_t> ids;
+    const YAML::Node& seq = sequence(e, ctx, false);
+    std::string where = ctx + "'" + e.name + "': ";
+    for (const auto& item : seq) {
+        if (!item.IsScalar())
+            fail(item.Mark(), where + "a message must be an id or a name, not " +
+                                  kind_name(item));
+        const std::string& text = item.Scalar();
+        if (!text.empty() && ((text[0] >= '0' && text[0] <= '9') || text[0] == '-')) {
+            auto id = parse_u64(text);
+            if (!id || *id > kMaxMessageId)
+                fail(item.Mark(), where + "message id '" + text + "' out of range 0.." +
+                                      std::to_string(kMaxMessageId));
+            ids.push_back(static_cast<uint32_t>(*id));
+        } else {
+            auto id = find_message_id(text);
+            if (!id)
+                fail(item.Mark(), where + "unknown message '" + text + "'");
+            ids.push_back(*id);
+        }
+    }
+    return ids;
+}
+
+std::vector<std::pair<std::string, YAML::Mark>> Parser::name_list(const Entry& e,
+                                                                  const std::string& ctx) const {
+    std::vector<std::pair<std::string, YAML::Mark>> names;
+    const YAML::Node& seq = sequence(e, ctx, false);
+    for (const auto& item : seq) {
+        if (!item.IsScalar() || item.Scalar().empty())
+            fail(item.Mark(), ctx + "'" + e.name + "': each item must be a name");
+        names.emplace_back(item.Scalar(), item.Mark());
+    }
+    return names;
+}
+
+Config Parser::parse(const YAML::Node& root) {
+    config_.path = name_;
+    if (root.IsNull())
+        fail(root.Mark(), "the file is empty (it needs at least an 'endpoints:' list)");
+    if (!root.IsMap())
+        fail(root.Mark(), std::string("the top level must be a map of keys, not ") +
+                              kind_name(root));
+
+    static const std::set<std::string_view> kTopKeys = {
+        "log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
+        "status_socket", "endpoints", "bonds", "filters"};
+    MapView view = make_view(root);
+    check_keys(view, "", &kTopKeys);
+
+    if (const Entry* e = view.find("log_level")) {
+        const std::string& text = scalar(*e, "");
+        auto level = parse_log_level(text);
+        if (!level)
+            fail(value_mark(*e), "invalid log_level '" + text +
+                                     "' (allowed: error, warning, notice, info, debug, trace)");
+        config_.log_level = *level;
+    }
+    if (const Entry* e = view.find("unknown_messages")) {
+        config_.unknown_messages = choice<UnknownIdPolicy>(
+            *e, "", {{"forward", UnknownIdPolicy::Forward}, {"drop", UnknownIdPolicy::Drop}});
+    }
+    if (const Entry* e = view.find("route_timeout"))
+        config_.route_timeout = duration(*e, "", false);
+    if (const Entry* e = view.find("report_interval"))
+        config_.report_interval = duration(*e, "", true);
+    if (const Entry* e = view.find("plugin_dir"))
+        config_.plugin_dir = scalar(*e, "");
+    if (const Entry* e = view.find("status_socket"))
+        config_.status_socket = scalar(*e, "");
+
+    const Entry* endpoints = view.find("endpoints");
+    if (!endpoints)
+        fail(root.Mark(), "missing required key 'endpoints'");
+    if (!endpoints->value.IsSequence() || endpoints->value.size() == 0)
+        fail(value_mark(*endpoints), "'endpoints' must be a non-empty sequence of endpoints");
+    size_t index = 0;
+    for (const auto& node : endpoints->value)
+        parse_endpoint(node, ++index);
+
+    if (const Entry* e = view.find("bonds")) {
+        index = 0;
+        for (const auto& node : sequence(*e, "", false))
+            parse_bond(node, ++index);
+    }
+    if (const Entry* e = view.find("filters")) {
+        index = 0;
+        for (const auto& node : sequence(*e, "", false))
+            parse_filter(node, ++index);
+    }
+    cross_check();
+    return std::move(config_);
+}
+
+void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
+    std::string ctx = "endpoint #" + std::to_string(index) + ": ";
+    if (!node.IsMap())
+        fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
+    MapView view = make_view(node);
+
+    EndpointConfig ep;
+    ep.mark = source_mark(node.Mark());
+    ep.name = required_scalar(view, node, "name", ctx);
+    const Entry& name_entry = *view.find("name");
+    for (char c : ep.name) {
+        if (!is_name_char(c))
+            fail(value_mark(name_entry), ctx + "invalid name '" + ep.name +
+                                             "' (allowed characters: A-Z a-z 0-9 _ . -)");
+    }
+    ctx = "endpoint '" + ep.name + "': ";
+
+    static const std::set<std::string_view> kKeys = {
+        "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
+        "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
+        "block_out", "bond"};
+    check_keys(view, ctx, &kKeys);
+
+    if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
+        !inserted) {
+        fail(value_mark(name_entry), "duplicate endpoint name '" + ep.name +
+                                         "' (first declared at line " +
+                                         std::to_string(it->second.line + 1) + ")");
+    }
+
+    if (!view.find("type"))
+        fail(node.Mark(), ctx + "missing required key 'type' (udp, tcp or uart)");
+    ep.type = choice<EndpointType>(*view.find("type"), ctx,
+                                   {{"udp", EndpointType::Udp},
+                                    {"tcp", EndpointType::Tcp},
+                                    {"uart", EndpointType::Uart}});
+    const char* type_word = ep.type == EndpointType::Udp   ? "udp"
+                            : ep.type == EndpointType::Tcp ? "tcp"
+                                                           : "uart";
+    bool networked = ep.type != EndpointType::Uart;
+    if (networked) {
+        if (!view.find("mode"))
+            fail(node.Mark(), ctx + "missing required key 'mode' (server or client)");
+        ep.mode = choice<EndpointMode>(*view.find("mode"), ctx,
+                                       {{"server", EndpointMode::Server},
+                                        {"client", EndpointMode::Client}});
+    }
+    const char* mode_word = ep.mode == EndpointMode::Server ? "server" : "client";
+
+    // Which keys this type (and mode) takes, beyond the common ones.
+    std::set<std::string_view> own = {"name", "type", "tx_queue", "allow_in", "block_in",
+                                      "allow_out", "block_out", "bond"};
+    std::set<std::string_view> by_type;  // keys the type takes in some mode
+    switch (ep.type) {
+    case EndpointType::Udp:
+        by_type = {"mode", "address", "peer_timeout"};
+        own.insert({"mode", "address"});
+        if (ep.mode == EndpointMode::Server)
+            own.insert("peer_timeout");
+        break;
+    case EndpointType::Tcp:
+        by_type = {"mode", "address", "reconnect_min", "reconnect_max"};
+        own.insert({"mode", "address"});
+        if (ep.mode == EndpointMode::Client)
+            own.insert({"reconnect_min", "reconnect_max"});
+        break;
+    case EndpointType::Uart:
+        by_type = {"device", "baud", "flow_control", "reconnect_min", "reconnect_max"};
+        own.insert(by_type.begin(), by_type.end());
+        break;
+    }
+    for (const auto& e : view.entries) {
+        if (own.count(e.name))
+            continue;
+        std::string what = by_type.count(e.name) ? std::string(type_word) + " " + mode_word
+                                                 : std::string(type_word);
+        fail(e.key.Mark(), ctx + "key '" + e.name + "' does not apply to a " + what +
+                               " endpoint");
+    }
+
+    if (networked) {
+        if (!view.find("address"))
+            fail(node.Mark(), ctx + "missing required key 'address' (host:port)");
+        parse_address(*view.find("address"), ctx, ep);
+    } else {
+        ep.device = required_scalar(view, node, "device", ctx);
+        if (const Entry* e = view.find("baud")) {
+            const std::string& text = scalar(*e, ctx);
+            auto baud = parse_u64(text);
+            if (!baud || *baud == 0 || *baud > std::numeric_limits<uint32_t>::max())
+                fail(value_mark(*e), ctx + "'baud': '" + text + "' is not a positive integer");
+            ep.baud = static_cast<uint32_t>(*baud);
+        }
+        if (const Entry* e = view.find("flow_control"))
+            ep.flow_control = boolean(*e, ctx);
+    }
+    if (const Entry* e = view.find("peer_timeout"))
+        ep.peer_timeout = duration(*e, ctx, true);
+    const Entry* rmin = view.find("reconnect_min");
+    const Entry* rmax = view.find("reconnect_max");
+    if (rmin)
+        ep.reconnect_min = duration(*rmin, ctx, true);
+    if (rmax)
+        ep.reconnect_max = duration(*rmax, ctx, true);
+    if (ep.reconnect_max < ep.reconnect_min) {
+        fail(value_mark(rmax ? *rmax : *rmin),
+             ctx + "'reconnect_max' (" + format_duration(ep.reconnect_max) +
+                 ") must not be below 'reconnect_min' (" + format_duration(ep.reconnect_min) +
+                 ")");
+    }
+
+    if (const Entry* e = view.find("tx_queue")) {
+        const std::string& text = scalar(*e, ctx);
+        std::string_view digits = text;
+        uint64_t unit = 1;
+        for (auto [suffix, mult] : {std::pair<std::string_view, uint64_t>{"KiB", 1024},
+                                    {"k", 1024},
+                                    {"MiB", 1024 * 1024},
+                                    {"M", 1024 * 1024}}) {
+            if (digits.size() > suffix.size() && digits.ends_with(suffix)) {
+                digits.remove_suffix(suffix.size());
+                unit = mult;
+                break;
+            }
+        }
+        auto n = parse_u64(digits);
+        if (!n || *n > kMaxTxQueueBytes / unit)
+            fail(value_mark(*e), ctx + "'tx_queue': '" + text +
+                                     "' is not a size in bytes (e.g. 16384, 16k, 16KiB; at most "
+                                     "64MiB)");
+        if (*n * unit < kMinTxQueueBytes)
+            fail(value_mark(*e), ctx + "'tx_queue': " + text + " is below the minimum of " +
+                                     std::to_string(kMinTxQueueBytes) +
+                                     " bytes (one largest frame)");
+        ep.tx_queue_bytes = static_cast<size_t>(*n * unit);
+    }
+    if (const Entry* e = view.find("allow_in"))
+        ep.filter_in.allow = message_ids(*e, ctx);
+    if (const Entry* e = view.find("block_in"))
+        ep.filter_in.block = message_ids(*e, ctx);
+    if (const Entry* e = view.find("allow_out"))
+        ep.filter_out.allow = message_ids(*e, ctx);
+    if (const Entry* e = view.find("block_out"))
+        ep.filter_out.block = message_ids(*e, ctx);
+    if (const Entry* e = view.find("bond")) {
+        ep.bond = scalar(*e, ctx);
+        if (ep.bond.empty())
+            fail(value_mark(*e), ctx + "'bond' must not be empty");
+        bond_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*e)});
+    }
+    config_.endpoints.push_back(std::move(ep));
+}
+
+void Parser::parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const {
+    const std::string& text = scalar(e, ctx);
+    std::string where = ctx + "'address': ";
+    auto colon = text.rfind(':');
+    if (colon == std::string::npos)
+        fail(value_mark(e), where + "'" + text + "' needs host:port (e.g. 0.0.0.0:14550)");
+    std::string host = text.substr(0, colon);
+    std::string port_text = text.substr(colon + 1);
+    in_addr addr{};
+    if (host == "localhost") {
+        host = "127.0.0.1";
+    } else if (inet_pton(AF_INET, host.c_str(), &addr) != 1) {
+        fail(value_mark(e), where + "host '" + host +
+                                "' is not an IPv4 address (a.b.c.d) or 'localhost'");
+    }
+    auto port = parse_u64(port_text);
+    if (!port || *port < 1 || *port > 65535)
+        fail(value_mark(e), where + "port '" + port_text + "' is not in 1..65535");
+    ep.host = host;
+    ep.port = static_cast<uint16_t>(*port);
+}
+
+void Parser::parse_bond(const YAML::Node& node, size_t index) {
+    std::string ctx = "bond #" + std::to_string(index) + ": ";
+    if (!node.IsMap())
+        fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
+    MapView view = make_view(node);
+    BondConfig bond;
+    bond.mark = source_mark(node.Mark());
+    bond.name = required_scalar(view, node, "name", ctx);
+    const Entry& name_entry = *view.find("name");
+    for (char c : bond.name) {
+        if (!is_name_char(c))
+            fail(value_mark(name_entry), ctx + "invalid name '" + bond.name +
+                                             "' (allowed characters: A-Z a-z 0-9 _ . -)");
+    }
+    ctx = "bond '" + bond.name + "': ";
+    static const std::set<std::string_view> kKeys = {"name", "tx"};
+    check_keys(view, ctx, &kKeys);
+    if (auto [it, inserted] = bond_names_.emplace(bond.name, name_entry.value.Mark());
+        !inserted) {
+        fail(value_mark(name_entry), "duplicate bond name '" + bond.name +
+                                         "' (first declared at line " +
+                                         std::to_string(it->second.line + 1) + ")");
+    }
+    if (const Entry* e = view.find("tx")) {
+        bond.tx = choice<BondConfig::Tx>(*e, ctx,
+                                         {{"broadcast", BondConfig::Tx::Broadcast},
+                                          {"active", BondConfig::Tx::Active}});
+    }
+    config_.bonds.push_back(std::move(bond));
+}
+
+void Parser::parse_filter(const YAML::Node& node, size_t index) {
+    std::string ctx = "filter #" + std::to_string(index) + ": ";
+    if (!node.IsMap())
+        fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
+    MapView view = make_view(node);
+    FilterConfig filter;
+    filter.mark = source_mark(node.Mark());
+    filter.plugin = required_scalar(view, node, "plugin", ctx);
+    for (char c : filter.plugin) {
+        if (!is_plugin_char(c))
+            fail(value_mark(*view.find("plugin")),
+                 ctx + "invalid plugin name '" + filter.plugin +
+                     "' (allowed characters: a-z 0-9 _)");
+    }
+    ctx = "filter #" + std::to_string(index) + " '" + filter.plugin + "': ";
+    // Any key is allowed: the plugin's own options are checked by the plugin loader.
+    check_keys(view, ctx, nullptr);
+
+    for (const auto& e : view.entries) {
+        if (e.name == "plugin") {
+            continue;
+        } else if (e.name == "enabled") {
+            filter.enabled = boolean(e, ctx);
+        } else if (e.name == "bonds" || e.name == "endpoints") {
+            for (auto& [name, mark] : name_list(e, ctx)) {
+                scope_refs_.push_back(ScopeRef{ctx, e.name, name, mark});
+                (e.name == "bonds" ? filter.bonds : filter.endpoints).push_back(name);
+            }
+        } else {
+            FilterConfig::Option option;
+            option.key = e.name;
+            option.mark = source_mark(e.key.Mark());
+            option.value_mark = source_mark(value_mark(e));
+            if (e.value.IsScalar()) {
+                option.value = e.value.Scalar();
+            } else if (e.value.IsSequence()) {
+                option.is_sequence = true;
+                for (const auto& item : e.value) {
+                    if (!item.IsScalar())
+                        fail(item.Mark(), ctx + "option '" + e.name +
+                                              "': items must be single values, not " +
+                                              kind_name(item));
+                    option.items.push_back(item.Scalar());
+                }
+                option.value = "[";
+                for (size_t i = 0; i < option.items.size(); ++i)
+                    option.value += (i ? ", " : "") + option.items[i];
+                option.value += "]";
+            } else if (e.value.IsNull()) {
+                fail(value_mark(e), ctx + "option '" + e.name + "' needs a value");
+            } else {
+                fail(value_mark(e), ctx + "option '" + e.name +
+                                        "' must be a value or a sequence of values, not " +
+                                        kind_name(e.value));
+            }
+            filter.options.push_back(std::move(option));
+        }
+    }
+    config_.filters.push_back(std::move(filter));
+}
+
+void Parser::cross_check() {
+    for (const auto& ref : bond_refs_) {
+        const auto& ep = config_.endpoints[ref.endpoint];
+        if (!bond_names_.count(ep.bond))
+            fail(ref.mark, "endpoint '" + ep.name + "': bond '" + ep.bond +
+                               "' is not declared under 'bonds:'");
+    }
+    for (const auto& bond : config_.bonds) {
+        bool has_member = false;
+        for (const auto& ep : config_.endpoints)
+            has_member = has_member || ep.bond == bond.name;
+        if (!has_member)
+            fail(bond_names_.at(bond.name),
+                 "bond '" + bond.name + "' has no member endpoint (set 'bond: " + bond.name +
+                     "' on at least one endpoint)");
+    }
+    for (const auto& ref : scope_refs_) {
+        bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0
+                                        : endpoint_names_.count(ref.name) > 0;
+        if (!known)
+            fail(ref.mark, ref.filter_ctx + "'" + ref.key + "': unknown " +
+                               (ref.key == "bonds" ? "bond" : "endpoint") + " '" + ref.name +
+                               "'");
+    }
+}
+
+std::string format_at(const std::string& name, const YAML::Mark& mark, const std::string& what) {
+    int line = mark.is_null() ? 1 : mark.line + 1;
+    int column = mark.is_null() ? 1 : mark.column + 1;
+    return name + ":" + std::to_string(line) + ":" + std::to_string(column) + ": " + what;
+}
+
+}  // namespace
+
+std::optional<Duration> parse_duration(std::string_view text) {
+    size_t i = 0;
+    uint64_t whole = 0;
+    size_t whole_digits = 0;
+    while (i < text.size() && text[i] >= '0' && text[i] <= '9') {
+        if (whole > (std::numeric_limits<uint64_t>::max() - 9) / 10)
+            return std::nullopt;
+        whole = whole * 10 + static_cast<uint64_t>(text[i] - '0');
+        ++i;
+        ++whole_digits;
+    }
+    if (whole_digits == 0)
+        return std::nullopt;
+    // Up to 9 fraction digits, kept as an exact decimal: 1.5s is 1500000000ns.
+    uint64_t frac = 0;
+    uint64_t frac_scale = 1;
+    if (i < text.size() && text[i] == '.') {
+        ++i;
+        size_t frac_digits = 0;
+        while (i < text.size() && text[i] >= '0' && text[i] <= '9') {
+            if (frac_digits == 9)
+                return std::nullopt;
+            frac = frac * 10 + static_cast<uint64_t>(text[i] - '0');
+            frac_scale *= 10;
+            ++i;
+            ++frac_digits;
+        }
+        if (frac_digits == 0)
+            return std::nullopt;
+    }
+    std::string_view unit = text.substr(i);
+    uint64_t ns_per_unit = 0;
+    if (unit == "ns")
+        ns_per_unit = 1;
+    else if (unit == "us")
+        ns_per_unit = 1'000;
+    else if (unit == "ms")
+        ns_per_unit = 1'000'000;
+    else if (unit == "s")
+        ns_per_unit = 1'000'000'000;
+    else if (unit == "m")
+        ns_per_unit = 60'000'000'000;
+    else
+        return std::nullopt;
+    constexpr auto kMax = static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
+    if (whole > kMax / ns_per_unit)
+        return std::nullopt;
+    uint64_t ns = whole * ns_per_unit;
+    // frac < frac_scale <= 1e9, and frac_scale divides 1e9: both branches stay in 64 bits.
+    uint64_t extra = 0;
+    if (ns_per_unit >= 1'000'000'000) {
+        extra = frac * (1'000'000'000 / frac_scale) * (ns_per_unit / 1'000'000'000);
+    } else {
+        if (frac * ns_per_unit % frac_scale != 0)
+            return std::nullopt;  // finer than a nanosecond
+        extra = frac * ns_per_unit / frac_scale;
+    }
+    if (ns > kMax - extra)
+        return std::nullopt;
+    return Duration(static_cast<int64_t>(ns + extra));
+}
+
+Result<Config> parse_config(const std::string& text, const std::string& name) {
+    try {
+        std::vector<YAML::Node> docs = YAML::LoadAll(text);
+        if (docs.size() > 1) {
+            return make_error(format_at(name, docs[1].Mark(),
+                                        "only one YAML document is allowed (found a second "
+                                        "one after '---')"));
+        }
+        Parser parser(name);
+        return parser.parse(docs.empty() ? YAML::Node() : docs[0]);
+    } catch (const ConfigError& e) {
+        return make_error(e.message);
+    } catch (const YAML::Exception& e) {
+        return make_error(format_at(name, e.mark, e.msg));
+    } catch (const std::exception& e) {
+        return make_error(format_at(name, YAML::Mark::null_mark(), e.what()));
+    }
+}
+
+Result<Config> load_config(const std::string& path) {
+    FILE* f = std::fopen(path.c_str(), "rb");
+    if (!f)
+        return make_error(path + ": cannot open: " + std::strerror(errno));
+    std::string text;
+    char buf[8192];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, f)) > 0)
+        text.append(buf, n);
+    int read_errno = std::ferror(f) ? errno : 0;
+    std::fclose(f);
+    if (read_errno != 0)
+        return make_error(path + ": cannot read: " + std::strerror(read_errno));
+    return parse_config(text, path);
+}
+
+}  // namespace mavbond
