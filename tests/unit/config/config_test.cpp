@@ -1,0 +1,539 @@
+// Config loader: the shipped files load, valid YAML maps to the right values, and every kind of
+// malformed config is refused with its exact "file:line:column: message".
+#include "config/config.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+namespace mavbond {
+namespace {
+
+using std::chrono::microseconds;
+using std::chrono::minutes;
+using std::chrono::nanoseconds;
+
+/// Inline YAML is written as R"(
+/// key: ...)": the newline after the opening quote is dropped so the text starts at line 1.
+Result<Config> parse(const char* text) {
+    std::string s = text;
+    if (!s.empty() && s.front() == '\n')
+        s.erase(0, 1);
+    return parse_config(s, "t.yaml");
+}
+
+std::string source_root() {
+    const char* root = std::getenv("MAVBOND_SOURCE_ROOT");
+    return root ? root : "";
+}
+
+// --- the shipped files -----------------------------------------------------------------------
+
+class ShippedConfig : public testing::TestWithParam<const char*> {};
+
+TEST_P(ShippedConfig, Loads) {
+    ASSERT_FALSE(source_root().empty()) << "MAVBOND_SOURCE_ROOT is not set (run via meson test)";
+    std::string path = source_root() + "/" + GetParam();
+    auto config = load_config(path);
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_EQ(path, config->path);
+    EXPECT_FALSE(config->endpoints.empty());
+}
+
+INSTANTIATE_TEST_SUITE_P(Files, ShippedConfig,
+                         testing::Values("conf/mavbond.yaml", "conf/examples/air-side.yaml",
+                                         "conf/examples/ground-side.yaml"));
+
+TEST(ShippedConfig, DefaultIsHarmless) {
+    auto config = load_config(source_root() + "/conf/mavbond.yaml");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    ASSERT_EQ(2u, config->endpoints.size());
+    const auto& gcs = config->endpoints[0];
+    EXPECT_EQ("gcs", gcs.name);
+    EXPECT_EQ(EndpointType::Udp, gcs.type);
+    EXPECT_EQ(EndpointMode::Server, gcs.mode);
+    EXPECT_EQ("0.0.0.0", gcs.host);
+    EXPECT_EQ(14550, gcs.port);
+    const auto& autopilot = config->endpoints[1];
+    EXPECT_EQ(EndpointType::Udp, autopilot.type);
+    EXPECT_EQ(EndpointMode::Server, autopilot.mode);
+    EXPECT_EQ("127.0.0.1", autopilot.host);
+    EXPECT_EQ(14540, autopilot.port);
+    // No serial port, no bond, no plugin to load on a fresh install.
+    for (const auto& ep : config->endpoints)
+        EXPECT_NE(EndpointType::Uart, ep.type) << ep.name;
+    EXPECT_TRUE(config->bonds.empty());
+    EXPECT_TRUE(config->filters.empty());
+}
+
+TEST(ShippedConfig, AirSide) {
+    auto config = load_config(source_root() + "/conf/examples/air-side.yaml");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    ASSERT_EQ(3u, config->endpoints.size());
+    const auto& fc = config->endpoints[0];
+    EXPECT_EQ(EndpointType::Uart, fc.type);
+    EXPECT_EQ("/dev/ttyAMA0", fc.device);
+    EXPECT_EQ(921600u, fc.baud);
+    EXPECT_TRUE(fc.flow_control);
+    EXPECT_EQ("", fc.bond);
+    EXPECT_EQ(EndpointType::Uart, config->endpoints[1].type);
+    EXPECT_EQ(57600u, config->endpoints[1].baud);
+    EXPECT_EQ("vehicle", config->endpoints[1].bond);
+    EXPECT_EQ(EndpointType::Udp, config->endpoints[2].type);
+    EXPECT_EQ(EndpointMode::Client, config->endpoints[2].mode);
+    EXPECT_EQ("vehicle", config->endpoints[2].bond);
+    ASSERT_EQ(1u, config->bonds.size());
+    EXPECT_EQ("vehicle", config->bonds[0].name);
+    ASSERT_EQ(3u, config->filters.size());
+    EXPECT_EQ("dedup", config->filters[0].plugin);
+    EXPECT_EQ("linkswitch", config->filters[1].plugin);
+    EXPECT_EQ("stats", config->filters[2].plugin);
+}
+
+TEST(ShippedConfig, GroundSide) {
+    auto config = load_config(source_root() + "/conf/examples/ground-side.yaml");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    int members = 0;
+    bool udp_server_14550 = false;
+    bool tcp_server_5760 = false;
+    for (const auto& ep : config->endpoints) {
+        members += ep.bond == "vehicle";
+        udp_server_14550 |= ep.type == EndpointType::Udp && ep.mode == EndpointMode::Server &&
+                            ep.port == 14550;
+        tcp_server_5760 |= ep.type == EndpointType::Tcp && ep.mode == EndpointMode::Server &&
+                           ep.port == 5760;
+    }
+    EXPECT_EQ(2, members);
+    EXPECT_TRUE(udp_server_14550);
+    EXPECT_TRUE(tcp_server_5760);
+}
+
+// --- valid configs ---------------------------------------------------------------------------
+
+TEST(ConfigParse, DefaultsWithMinimalEndpoint) {
+    auto config = parse(R"(
+endpoints:
+  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:14550}
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_EQ("t.yaml", config->path);
+    EXPECT_EQ(LogLevel::Info, config->log_level);
+    EXPECT_EQ(UnknownIdPolicy::Forward, config->unknown_messages);
+    EXPECT_EQ(seconds(30), config->route_timeout);
+    EXPECT_EQ(seconds(10), config->report_interval);
+    EXPECT_EQ("", config->plugin_dir);
+    EXPECT_EQ("", config->status_socket);
+    ASSERT_EQ(1u, config->endpoints.size());
+    const auto& ep = config->endpoints[0];
+    EXPECT_EQ(seconds(30), ep.peer_timeout);
+    EXPECT_EQ(16384u, ep.tx_queue_bytes);
+    EXPECT_TRUE(ep.filter_in.allow.empty());
+    EXPECT_TRUE(ep.filter_out.block.empty());
+    EXPECT_EQ("", ep.bond);
+    EXPECT_EQ("t.yaml", ep.mark.file);
+    EXPECT_EQ(2, ep.mark.line);
+    EXPECT_EQ(5, ep.mark.column);
+}
+
+TEST(ConfigParse, EveryKey) {
+    auto config = parse(R"(
+filters:                     # before endpoints: key order is free
+  - plugin: dedup
+    enabled: false
+    bonds: [vehicle]
+    endpoints: [radio, lte]
+    window: 500ms
+    hash: [a, b]
+  - plugin: stats
+log_level: debug
+unknown_messages: drop
+route_timeout: 1m
+report_interval: 1.5s
+plugin_dir: /opt/plugins
+status_socket: /run/mavbond/status.sock
+endpoints:
+  - name: fc
+    type: uart
+    device: /dev/ttyAMA0
+    baud: 1500000
+    flow_control: true
+    reconnect_min: 250ms
+    reconnect_max: 2s
+    tx_queue: 16KiB
+    allow_in: [HEARTBEAT, 33, 16777215]
+    block_in: [ATTITUDE]
+    allow_out: []
+    block_out: [0]
+  - name: radio
+    type: tcp
+    mode: client
+    address: localhost:5760
+    reconnect_min: 100us
+    reconnect_max: 100us
+    tx_queue: 280
+    bond: vehicle
+  - name: lte
+    type: udp
+    mode: client
+    address: 192.0.2.10:14560
+    tx_queue: 1k
+    bond: vehicle
+  - name: gcs.1-x_Y
+    type: tcp
+    mode: server
+    address: 127.0.0.1:65535
+bonds:
+  - name: vehicle
+    tx: active
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_EQ(LogLevel::Debug, config->log_level);
+    EXPECT_EQ(UnknownIdPolicy::Drop, config->unknown_messages);
+    EXPECT_EQ(minutes(1), config->route_timeout);
+    EXPECT_EQ(milliseconds(1500), config->report_interval);
+    EXPECT_EQ("/opt/plugins", config->plugin_dir);
+    EXPECT_EQ("/run/mavbond/status.sock", config->status_socket);
+
+    ASSERT_EQ(4u, config->endpoints.size());
+    const auto& fc = config->endpoints[0];
+    EXPECT_EQ("fc", fc.name);
+    EXPECT_EQ(EndpointType::Uart, fc.type);
+    EXPECT_EQ("/dev/ttyAMA0", fc.device);
+    EXPECT_EQ(1500000u, fc.baud);
+    EXPECT_TRUE(fc.flow_control);
+    EXPECT_EQ(milliseconds(250), fc.reconnect_min);
+    EXPECT_EQ(seconds(2), fc.reconnect_max);
+    EXPECT_EQ(16384u, fc.tx_queue_bytes);
+    EXPECT_EQ((std::vector<uint32_t>{0, 33, 16777215}), fc.filter_in.allow);
+    EXPECT_EQ((std::vector<uint32_t>{30}), fc.filter_in.block);
+    EXPECT_TRUE(fc.filter_out.allow.empty());
+    EXPECT_EQ((std::vector<uint32_t>{0}), fc.filter_out.block);
+    EXPECT_EQ(16, fc.mark.line);
+    EXPECT_EQ(5, fc.mark.column);
+
+    const auto& radio = config->endpoints[1];
+    EXPECT_EQ(EndpointType::Tcp, radio.type);
+    EXPECT_EQ(EndpointMode::Client, radio.mode);
+    EXPECT_EQ("127.0.0.1", radio.host);  // localhost is stored as the loopback address
+    EXPECT_EQ(5760, radio.port);
+    EXPECT_EQ(microseconds(100), radio.reconnect_min);
+    EXPECT_EQ(microseconds(100), radio.reconnect_max);
+    EXPECT_EQ(280u, radio.tx_queue_bytes);
+    EXPECT_EQ("vehicle", radio.bond);
+
+    const auto& lte = config->endpoints[2];
+    EXPECT_EQ(EndpointType::Udp, lte.type);
+    EXPECT_EQ(EndpointMode::Client, lte.mode);
+    EXPECT_EQ("192.0.2.10", lte.host);
+    EXPECT_EQ(14560, lte.port);
+    EXPECT_EQ(1024u, lte.tx_queue_bytes);
+
+    const auto& gcs = config->endpoints[3];
+    EXPECT_EQ("gcs.1-x_Y", gcs.name);
+    EXPECT_EQ(EndpointMode::Server, gcs.mode);
+    EXPECT_EQ(65535, gcs.port);
+    EXPECT_EQ(57600u, gcs.baud);  // untouched default
+
+    ASSERT_EQ(1u, config->bonds.size());
+    EXPECT_EQ("vehicle", config->bonds[0].name);
+    EXPECT_EQ(BondConfig::Tx::Active, config->bonds[0].tx);
+    EXPECT_EQ(47, config->bonds[0].mark.line);
+    EXPECT_EQ(5, config->bonds[0].mark.column);
+
+    ASSERT_EQ(2u, config->filters.size());
+    const auto& dedup = config->filters[0];
+    EXPECT_EQ("dedup", dedup.plugin);
+    EXPECT_FALSE(dedup.enabled);
+    EXPECT_EQ((std::vector<std::string>{"vehicle"}), dedup.bonds);
+    EXPECT_EQ((std::vector<std::string>{"radio", "lte"}), dedup.endpoints);
+    EXPECT_EQ(2, dedup.mark.line);
+    EXPECT_EQ(5, dedup.mark.column);
+    ASSERT_EQ(2u, dedup.options.size());
+    EXPECT_EQ("window", dedup.options[0].key);
+    EXPECT_EQ("500ms", dedup.options[0].value);
+    EXPECT_FALSE(dedup.options[0].is_sequence);
+    EXPECT_EQ("t.yaml", dedup.options[0].mark.file);
+    EXPECT_EQ(6, dedup.options[0].mark.line);
+    EXPECT_EQ(5, dedup.options[0].mark.column);
+    EXPECT_EQ(6, dedup.options[0].value_mark.line);
+    EXPECT_EQ(13, dedup.options[0].value_mark.column);
+    EXPECT_EQ("hash", dedup.options[1].key);
+    EXPECT_TRUE(dedup.options[1].is_sequence);
+    EXPECT_EQ("[a, b]", dedup.options[1].value);
+    EXPECT_EQ((std::vector<std::string>{"a", "b"}), dedup.options[1].items);
+
+    const auto& stats = config->filters[1];
+    EXPECT_TRUE(stats.enabled);
+    EXPECT_TRUE(stats.bonds.empty());
+    EXPECT_TRUE(stats.endpoints.empty());
+    EXPECT_TRUE(stats.options.empty());
+}
+
+TEST(ConfigParse, EmptyOptionalSections) {
+    auto config = parse(R"(
+endpoints:
+  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:14550, allow_in: }
+bonds:
+filters: []
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_TRUE(config->bonds.empty());
+    EXPECT_TRUE(config->filters.empty());
+}
+
+// --- parse_duration --------------------------------------------------------------------------
+
+TEST(ParseDuration, Units) {
+    EXPECT_EQ(nanoseconds(5), parse_duration("5ns"));
+    EXPECT_EQ(microseconds(7), parse_duration("7us"));
+    EXPECT_EQ(milliseconds(250), parse_duration("250ms"));
+    EXPECT_EQ(seconds(2), parse_duration("2s"));
+    EXPECT_EQ(milliseconds(1500), parse_duration("1.5s"));
+    EXPECT_EQ(minutes(1), parse_duration("1m"));
+    EXPECT_EQ(seconds(90), parse_duration("1.5m"));
+    EXPECT_EQ(microseconds(2500), parse_duration("2.5ms"));
+    EXPECT_EQ(nanoseconds(1), parse_duration("0.000000001s"));
+    EXPECT_EQ(nanoseconds(0), parse_duration("0s"));
+}
+
+TEST(ParseDuration, Rejects) {
+    for (const char* text : {"", "30", "s", "1.s", ".5s", "1.5", "-1s", "+1s", "1 s", "1sec",
+                             "1h", "1.5ns", "0.0000000001s", "1e3ms", "99999999999999999999s",
+                             "9999999999m", " 1s", "1s "}) {
+        EXPECT_FALSE(parse_duration(text).has_value()) << "'" << text << "'";
+    }
+}
+
+// --- load_config -----------------------------------------------------------------------------
+
+TEST(LoadConfig, MissingFile) {
+    auto config = load_config("/nonexistent/mavbond.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("/nonexistent/mavbond.yaml: cannot open: No such file or directory",
+              config.error().message);
+}
+
+TEST(LoadConfig, Directory) {
+    auto config = load_config("/");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("/: cannot read: Is a directory", config.error().message);
+}
+
+TEST(LoadConfig, ErrorNamesTheFile) {
+    char path[] = "/tmp/mavbond-config-test-XXXXXX";
+    int fd = mkstemp(path);
+    ASSERT_GE(fd, 0);
+    const std::string text = "endpoints:\n  - {name: gcs, type: udp, mode: server, adress: x}\n";
+    ASSERT_EQ(static_cast<ssize_t>(text.size()), write(fd, text.data(), text.size()));
+    close(fd);
+    auto config = load_config(path);
+    unlink(path);
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ(std::string(path) + ":2:42: endpoint 'gcs': unknown key 'adress'",
+              config.error().message);
+}
+
+// --- malformed configs: each with its exact message -------------------------------------------
+
+struct BadCase {
+    const char* label;  // test name suffix
+    const char* yaml;
+    const char* error;
+};
+
+// Prefix of a valid first endpoint, for cases about later keys.
+#define GCS                                                                    \
+    "endpoints:\n"                                                             \
+    "  - name: gcs\n"                                                          \
+    "    type: udp\n"                                                          \
+    "    mode: server\n"                                                       \
+    "    address: 0.0.0.0:14550\n"
+
+const BadCase kBadCases[] = {
+    // --- file level
+    {"SyntaxError", "endpoints: [a, b\nlog_level: info\n",
+     "t.yaml:2:10: end of sequence flow not found"},
+    {"SyntaxBadIndent", "log_level: info\n  endpoints: []\n", "t.yaml:2:12: illegal map value"},
+    {"EmptyFile", "", "t.yaml:1:1: the file is empty (it needs at least an 'endpoints:' list)"},
+    {"OnlyComments", "# nothing here\n",
+     "t.yaml:1:1: the file is empty (it needs at least an 'endpoints:' list)"},
+    {"TopLevelSequence", "- name: gcs\n",
+     "t.yaml:1:1: the top level must be a map of keys, not a sequence"},
+    {"TopLevelScalar", "hello\n", "t.yaml:1:1: the top level must be a map of keys, not a scalar"},
+    {"TwoDocuments", GCS "---\nlog_level: info\n",
+     "t.yaml:7:1: only one YAML document is allowed (found a second one after '---')"},
+    {"UnknownTopKey", GCS "log_levle: info\n", "t.yaml:6:1: unknown key 'log_levle'"},
+    {"DuplicateTopKey", "log_level: info\n" GCS "log_level: debug\n",
+     "t.yaml:7:1: duplicate key 'log_level'"},
+    {"ComplexKey", GCS "? [a]\n: 1\n", "t.yaml:6:3: a key must be a plain word, not a sequence"},
+    {"MissingEndpoints", "log_level: info\n", "t.yaml:1:1: missing required key 'endpoints'"},
+    {"EmptyEndpoints", "endpoints: []\n",
+     "t.yaml:1:12: 'endpoints' must be a non-empty sequence of endpoints"},
+    {"EndpointsIsMap", "endpoints:\n  gcs: {type: udp}\n",
+     "t.yaml:2:3: 'endpoints' must be a non-empty sequence of endpoints"},
+    {"EndpointsNull", "endpoints:\n",
+     "t.yaml:1:1: 'endpoints' must be a non-empty sequence of endpoints"},
+
+    // --- top-level values
+    {"BadLogLevel", GCS "log_level: verbose\n",
+     "t.yaml:6:12: invalid log_level 'verbose' (allowed: error, warning, notice, info, debug, "
+     "trace)"},
+    {"LogLevelSequence", GCS "log_level: [info]\n",
+     "t.yaml:6:12: 'log_level' must be a single value, not a sequence"},
+    {"BadUnknownMessages", GCS "unknown_messages: keep\n",
+     "t.yaml:6:19: invalid unknown_messages 'keep' (allowed: forward, drop)"},
+    {"DurationWithoutUnit", GCS "route_timeout: 30\n",
+     "t.yaml:6:16: 'route_timeout': duration '30' needs a unit (ns, us, ms, s, m)"},
+    {"BadDuration", GCS "route_timeout: 30 sec\n",
+     "t.yaml:6:16: 'route_timeout': invalid duration '30 sec' (e.g. 250ms, 2s, 1.5s, 1m)"},
+    {"ZeroReportInterval", GCS "report_interval: 0s\n",
+     "t.yaml:6:18: 'report_interval': duration must be greater than 0"},
+    {"PluginDirNull", GCS "plugin_dir:\n", "t.yaml:6:1: 'plugin_dir' needs a value"},
+    {"BondsIsMap", GCS "bonds: {name: vehicle}\n",
+     "t.yaml:6:8: 'bonds' must be a sequence, not a map"},
+
+    // --- endpoint structure
+    {"EndpointNotMap", "endpoints:\n  - gcs\n",
+     "t.yaml:2:5: endpoint #1: must be a map of keys, not a scalar"},
+    {"EndpointMissingName", "endpoints:\n  - type: udp\n    mode: server\n",
+     "t.yaml:2:5: endpoint #1: missing required key 'name'"},
+    {"EndpointNameNull", "endpoints:\n  - name:\n    type: udp\n",
+     "t.yaml:2:5: endpoint #1: 'name' needs a value"},
+    {"EndpointBadName", "endpoints:\n  - name: my gcs\n",
+     "t.yaml:2:11: endpoint #1: invalid name 'my gcs' (allowed characters: A-Z a-z 0-9 _ . -)"},
+    {"UnknownEndpointKey", GCS "    adress: 0.0.0.0:14550\n",
+     "t.yaml:6:5: endpoint 'gcs': unknown key 'adress'"},
+    {"DuplicateEndpointKey", GCS "    mode: client\n",
+     "t.yaml:6:5: endpoint 'gcs': duplicate key 'mode'"},
+    {"DuplicateEndpointName", GCS "  - {name: gcs, type: udp, mode: client, address: 1.2.3.4:5}\n",
+     "t.yaml:6:12: duplicate endpoint name 'gcs' (first declared at line 2)"},
+    {"MissingType", "endpoints:\n  - name: gcs\n    mode: server\n",
+     "t.yaml:2:5: endpoint 'gcs': missing required key 'type' (udp, tcp or uart)"},
+    {"BadType", "endpoints:\n  - name: fc\n    type: serial\n",
+     "t.yaml:3:11: endpoint 'fc': invalid type 'serial' (allowed: udp, tcp, uart)"},
+    {"MissingMode", "endpoints:\n  - {name: gcs, type: udp, address: 0.0.0.0:14550}\n",
+     "t.yaml:2:5: endpoint 'gcs': missing required key 'mode' (server or client)"},
+    {"BadMode", "endpoints:\n  - {name: gcs, type: tcp, mode: listen}\n",
+     "t.yaml:2:34: endpoint 'gcs': invalid mode 'listen' (allowed: server, client)"},
+    {"ModeOnUart", "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, mode: server}\n",
+     "t.yaml:2:48: endpoint 'fc': key 'mode' does not apply to a uart endpoint"},
+    {"DeviceOnUdp", GCS "    device: /dev/ttyS0\n",
+     "t.yaml:6:5: endpoint 'gcs': key 'device' does not apply to a udp endpoint"},
+    {"PeerTimeoutOnUdpClient",
+     "endpoints:\n  - {name: lte, type: udp, mode: client, address: 1.2.3.4:5, peer_timeout: 5s}\n",
+     "t.yaml:2:62: endpoint 'lte': key 'peer_timeout' does not apply to a udp client endpoint"},
+    {"ReconnectOnTcpServer",
+     "endpoints:\n  - {name: mp, type: tcp, mode: server, address: 0.0.0.0:5760, "
+     "reconnect_min: 1s}\n",
+     "t.yaml:2:64: endpoint 'mp': key 'reconnect_min' does not apply to a tcp server endpoint"},
+
+    // --- endpoint values
+    {"MissingAddress", "endpoints:\n  - {name: gcs, type: udp, mode: server}\n",
+     "t.yaml:2:5: endpoint 'gcs': missing required key 'address' (host:port)"},
+    {"AddressWithoutPort", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': '0.0.0.0' needs host:port (e.g. 0.0.0.0:14550)"},
+    {"PortZero", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:0}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': port '0' is not in 1..65535"},
+    {"PortTooBig", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:65536}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': port '65536' is not in 1..65535"},
+    {"PortText", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: '0.0.0.0:gcs'}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': port 'gcs' is not in 1..65535"},
+    {"BadHost", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 300.1.2.3:14550}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': host '300.1.2.3' is not an IPv4 address (a.b.c.d) "
+     "or 'localhost'"},
+    {"HostName", "endpoints:\n  - {name: gcs, type: tcp, mode: client, address: gcs.lan:5760}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': host 'gcs.lan' is not an IPv4 address (a.b.c.d) "
+     "or 'localhost'"},
+    {"MissingDevice", "endpoints:\n  - name: fc\n    type: uart\n    baud: 57600\n",
+     "t.yaml:2:5: endpoint 'fc': missing required key 'device'"},
+    {"BaudZero", "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, baud: 0}\n",
+     "t.yaml:2:54: endpoint 'fc': 'baud': '0' is not a positive integer"},
+    {"BaudNegative", "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, baud: -9600}\n",
+     "t.yaml:2:54: endpoint 'fc': 'baud': '-9600' is not a positive integer"},
+    {"BaudText", "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, baud: fast}\n",
+     "t.yaml:2:54: endpoint 'fc': 'baud': 'fast' is not a positive integer"},
+    {"BadFlowControl",
+     "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, flow_control: maybe}\n",
+     "t.yaml:2:62: endpoint 'fc': 'flow_control' must be true or false, not 'maybe'"},
+    {"ReconnectMaxBelowMin",
+     "endpoints:\n  - name: fc\n    type: uart\n    device: /dev/ttyS0\n"
+     "    reconnect_max: 1s\n    reconnect_min: 2s\n",
+     "t.yaml:5:20: endpoint 'fc': 'reconnect_max' (1s) must not be below 'reconnect_min' (2s)"},
+    {"ReconnectMinAboveDefaultMax",
+     "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, reconnect_min: 10s}\n",
+     "t.yaml:2:63: endpoint 'fc': 'reconnect_max' (5s) must not be below 'reconnect_min' (10s)"},
+    {"PeerTimeoutNoUnit", GCS "    peer_timeout: 30\n",
+     "t.yaml:6:19: endpoint 'gcs': 'peer_timeout': duration '30' needs a unit (ns, us, ms, s, m)"},
+    {"TxQueueTooSmall", GCS "    tx_queue: 100\n",
+     "t.yaml:6:15: endpoint 'gcs': 'tx_queue': 100 is below the minimum of 280 bytes (one "
+     "largest frame)"},
+    {"TxQueueBadSuffix", GCS "    tx_queue: 16kb\n",
+     "t.yaml:6:15: endpoint 'gcs': 'tx_queue': '16kb' is not a size in bytes (e.g. 16384, 16k, "
+     "16KiB; at most 64MiB)"},
+    {"UnknownMessageName", GCS "    allow_in: [HEARTBEAT, HEARTBEET]\n",
+     "t.yaml:6:27: endpoint 'gcs': 'allow_in': unknown message 'HEARTBEET'"},
+    {"MessageIdOutOfRange", GCS "    block_in: [16777216]\n",
+     "t.yaml:6:16: endpoint 'gcs': 'block_in': message id '16777216' out of range 0..16777215"},
+    {"NegativeMessageId", GCS "    allow_out:\n      - -1\n",
+     "t.yaml:7:9: endpoint 'gcs': 'allow_out': message id '-1' out of range 0..16777215"},
+    {"MessageListNotSequence", GCS "    block_out: HEARTBEAT\n",
+     "t.yaml:6:16: endpoint 'gcs': 'block_out' must be a sequence, not a scalar"},
+    {"MessageListNested", GCS "    block_out: [[0]]\n",
+     "t.yaml:6:17: endpoint 'gcs': 'block_out': a message must be an id or a name, not a "
+     "sequence"},
+
+    // --- bonds
+    {"UndeclaredBond", GCS "    bond: vehicle\n",
+     "t.yaml:6:11: endpoint 'gcs': bond 'vehicle' is not declared under 'bonds:'"},
+    {"BondWithoutMembers", GCS "bonds:\n  - name: vehicle\n",
+     "t.yaml:7:11: bond 'vehicle' has no member endpoint (set 'bond: vehicle' on at least one "
+     "endpoint)"},
+    {"DuplicateBond", GCS "    bond: v\nbonds:\n  - name: v\n  - name: v\n",
+     "t.yaml:9:11: duplicate bond name 'v' (first declared at line 8)"},
+    {"BadBondTx", GCS "    bond: v\nbonds:\n  - {name: v, tx: all}\n",
+     "t.yaml:8:19: bond 'v': invalid tx 'all' (allowed: broadcast, active)"},
+    {"UnknownBondKey", GCS "    bond: v\nbonds:\n  - {name: v, mode: active}\n",
+     "t.yaml:8:15: bond 'v': unknown key 'mode'"},
+    {"BondMissingName", GCS "bonds:\n  - tx: active\n",
+     "t.yaml:7:5: bond #1: missing required key 'name'"},
+
+    // --- filters
+    {"FilterMissingPlugin", GCS "filters:\n  - window: 500ms\n",
+     "t.yaml:7:5: filter #1: missing required key 'plugin'"},
+    {"FilterBadPlugin", GCS "filters:\n  - plugin: Dedup\n",
+     "t.yaml:7:13: filter #1: invalid plugin name 'Dedup' (allowed characters: a-z 0-9 _)"},
+    {"FilterUnknownBond", GCS "filters:\n  - plugin: stats\n  - {plugin: dedup, bonds: [air]}\n",
+     "t.yaml:8:29: filter #2 'dedup': 'bonds': unknown bond 'air'"},
+    {"FilterUnknownEndpoint", GCS "filters:\n  - plugin: dedup\n    endpoints: [gcs, radio]\n",
+     "t.yaml:8:22: filter #1 'dedup': 'endpoints': unknown endpoint 'radio'"},
+    {"FilterBadEnabled", GCS "filters:\n  - {plugin: dedup, enabled: yes please}\n",
+     "t.yaml:7:30: filter #1 'dedup': 'enabled' must be true or false, not 'yes please'"},
+    {"FilterDuplicateOption", GCS "filters:\n  - plugin: dedup\n    window: 1s\n    window: 2s\n",
+     "t.yaml:9:5: filter #1 'dedup': duplicate key 'window'"},
+    {"FilterOptionMap", GCS "filters:\n  - plugin: dedup\n    window: {a: 1}\n",
+     "t.yaml:8:13: filter #1 'dedup': option 'window' must be a value or a sequence of values, "
+     "not a map"},
+    {"FilterOptionNull", GCS "filters:\n  - plugin: dedup\n    window:\n",
+     "t.yaml:8:5: filter #1 'dedup': option 'window' needs a value"},
+    {"FilterNotMap", GCS "filters:\n  - dedup\n",
+     "t.yaml:7:5: filter #1: must be a map of keys, not a scalar"},
+};
+
+class BadConfig : public testing::TestWithParam<BadCase> {};
+
+TEST_P(BadConfig, FailsWithExactMessage) {
+    auto config = parse_config(GetParam().yaml, "t.yaml");
+    ASSERT_FALSE(config.has_value()) << GetParam().yaml;
+    EXPECT_EQ(GetParam().error, config.error().message) << GetParam().yaml;
+}
+
+INSTANTIATE_TEST_SUITE_P(Cases, BadConfig, testing::ValuesIn(kBadCases),
+                         [](const testing::TestParamInfo<BadCase>& param_info) {
+                             return std::string(param_info.param.label);
+                         });
+
+}  // namespace
+}  // namespace mavbond
