@@ -284,6 +284,28 @@ filters: []
     EXPECT_TRUE(config->filters.empty());
 }
 
+TEST(ConfigParse, GarbageNeverThrows) {
+    const std::string inputs[] = {
+        "\t",
+        "{{{{",
+        std::string(5000, '['),          // yaml-cpp's depth guard throws
+        "\xff\xfe\x00\x01",
+        "*undefined_alias\n",
+        "endpoints: &a [*a]\n",
+        "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:14550}\n---\n",
+        "endpoints:\n  - !!binary name: x\n",
+        std::string("endpoints:\n  - name: \0\n", 24),
+    };
+    for (const auto& text : inputs) {
+        Result<Config> config = make_error("not run");
+        EXPECT_NO_THROW(config = parse_config(text, "t.yaml")) << text.substr(0, 40);
+        EXPECT_FALSE(config.has_value()) << text.substr(0, 40);
+        if (!config.has_value()) {
+            EXPECT_EQ(0u, config.error().message.rfind("t.yaml:", 0)) << config.error().message;
+        }
+    }
+}
+
 // --- parse_duration --------------------------------------------------------------------------
 
 TEST(ParseDuration, Units) {
@@ -433,7 +455,8 @@ const BadCase kBadCases[] = {
     // --- endpoint values
     {"MissingAddress", "endpoints:\n  - {name: gcs, type: udp, mode: server}\n",
      "t.yaml:2:5: endpoint 'gcs': missing required key 'address' (host:port)"},
-    {"AddressWithoutPort", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0}\n",
+    {"AddressWithoutPort",
+     "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': '0.0.0.0' needs host:port (e.g. 0.0.0.0:14550)"},
     {"PortZero", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:0}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': port '0' is not in 1..65535"},
