@@ -6,6 +6,8 @@
 
 namespace mavbond {
 
+struct MessageInfo;
+
 constexpr uint8_t kMagicV1 = 0xFE;
 constexpr uint8_t kMagicV2 = 0xFD;
 constexpr uint8_t kIncompatSigned = 0x01;
@@ -27,6 +29,7 @@ struct Frame {
     int16_t target_system = -1;        // -1: the message has no target_system field
     int16_t target_component = -1;    // -1: the message has no target_component field
     bool crc_checked = false;          // false: unknown msgid, forwarded unverified
+    const MessageInfo* info = nullptr; // the message table entry; nullptr for an unknown msgid
 
     bool is_signed() const { return (incompat_flags & kIncompatSigned) != 0; }
     /// True for frames addressed to everybody: no target field, or target_system 0.

@@ -19,8 +19,11 @@ enum class UnknownIdPolicy { Forward, Drop };
 struct ParserCounters {
     uint64_t frames = 0;          // frames yielded (checked + unknown forwarded)
     uint64_t bytes = 0;           // bytes of the yielded frames
-    uint64_t crc_errors = 0;      // candidate frames rejected by the CRC
-    uint64_t garbage_bytes = 0;   // bytes skipped while looking for a frame
+    uint64_t crc_errors = 0;      // candidates failing the integrity check: bad CRC, or a
+                                  // length impossible for their (known) msgid
+    uint64_t bad_lengths = 0;     // the part of crc_errors rejected by length alone
+    uint64_t garbage_bytes = 0;   // bytes skipped that were not part of a yielded or dropped
+                                  // frame (a rejected candidate's bytes become garbage)
     uint64_t unknown_ids = 0;     // frames with an unknown msgid (forwarded or dropped)
     uint64_t bad_flags = 0;       // v2 frames with incompat flag bits we do not understand
 };
