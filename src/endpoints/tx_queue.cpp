@@ -36,12 +36,10 @@ bool TxQueue::lend(std::span<const uint8_t> frame) {
 void TxQueue::push_backlog(std::span<const uint8_t> frame, WriteResult& result) {
     size_t record = kRecordHeader + frame.size();
     while (backlog_bytes() + record > capacity_) {
-        if (head_written_ > 0 || backlog_frames_ == 0) {
-            // The head frame is half on the wire and must finish: drop the new one instead.
-            result.frames_dropped++;
+        if (!drop_oldest_whole()) {
+            result.frames_dropped++;  // nothing older can go: drop the new frame
             return;
         }
-        pop_backlog_front();
         result.frames_dropped++;
     }
     if (tail_ + record > backlog_.size()) {
@@ -54,6 +52,27 @@ void TxQueue::push_backlog(std::span<const uint8_t> frame, WriteResult& result) 
     std::memcpy(backlog_.data() + tail_ + kRecordHeader, frame.data(), frame.size());
     tail_ += record;
     backlog_frames_++;
+}
+
+bool TxQueue::drop_oldest_whole() {
+    if (backlog_frames_ == 0)
+        return false;
+    if (head_written_ == 0) {
+        pop_backlog_front();
+        return true;
+    }
+    // The head frame is half on the wire and must finish: drop the one after it by sliding
+    // the head record forward over it.
+    if (backlog_frames_ < 2)
+        return false;
+    uint16_t head_len, second_len;
+    std::memcpy(&head_len, backlog_.data() + head_, kRecordHeader);
+    std::memcpy(&second_len, backlog_.data() + head_ + kRecordHeader + head_len, kRecordHeader);
+    size_t second = kRecordHeader + second_len;
+    std::memmove(backlog_.data() + head_ + second, backlog_.data() + head_, kRecordHeader + head_len);
+    head_ += second;
+    backlog_frames_--;
+    return true;
 }
 
 void TxQueue::pop_backlog_front() {

@@ -51,6 +51,8 @@ private:
     // Backlog records: [u16 length][frame bytes], contiguous, compacted lazily.
     void push_backlog(std::span<const uint8_t> frame, WriteResult& result);
     void pop_backlog_front();
+    /// Drops the oldest frame not yet partly written; false when there is none.
+    bool drop_oldest_whole();
     size_t backlog_bytes() const { return tail_ - head_; }
     void collect_backlog_iov(std::vector<iovec>& out, size_t max) const;
 
