@@ -14,6 +14,9 @@
 namespace mavbond {
 
 /// What happens to frames whose msgid c_library_v2 does not know (their CRC cannot be checked).
+/// Such a frame is believed only when no CRC-valid known frame starts inside it and a frame
+/// boundary follows it (a start byte, or the end of the datagram); otherwise it is garbage.
+/// Forward yields it with crc_checked = false; Drop skips it. Both count unknown_ids.
 enum class UnknownIdPolicy { Forward, Drop };
 
 struct ParserCounters {
@@ -52,7 +55,9 @@ public:
     std::span<uint8_t> write_area();
     /// Marks n bytes of write_area() as filled.
     void commit(size_t n);
-    /// Next complete frame in the buffered bytes; false when more bytes are needed.
+    /// Next complete frame in the buffered bytes; false when more bytes are needed. Rejected
+    /// candidates are retried from the next start byte within the same call. A possible
+    /// known-id frame waits for its bytes; an unknown-id frame waits for the next start byte.
     bool next(Frame& frame);
     /// Drops buffered bytes (e.g. after a UART reopen); counts them as garbage.
     void reset();
