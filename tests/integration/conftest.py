@@ -1,0 +1,66 @@
+"""Fixtures for the integration tests: the mavbond binary, a daemon factory that always kills
+what it started, pty pairs, and the shared tlog directory."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from helpers import REPO, Daemon, Pty, make_config
+
+
+@pytest.fixture(scope="session")
+def mavbond_bin() -> str:
+    path = os.environ.get("MAVBOND_BIN", str(REPO / "build" / "src" / "mavbond"))
+    if not (os.path.isfile(path) and os.access(path, os.X_OK)):
+        pytest.fail(f"mavbond binary not found at {path}: build it (meson setup build && ninja -C "
+                    f"build) or point MAVBOND_BIN at it", pytrace=False)
+    return path
+
+
+@pytest.fixture
+def start_daemon(mavbond_bin, tmp_path):
+    """start_daemon(endpoints, name="mavbond", wait_for=..., **top_level_keys) -> Daemon.
+    Every daemon started is killed when the test ends, whatever happened."""
+    started = []
+
+    def start(endpoints, name="mavbond", wait_for="running with", **top):
+        d = Daemon(mavbond_bin, tmp_path, make_config(endpoints, **top), name=name)
+        started.append(d)
+        return d.start(wait_for=wait_for)
+
+    yield start
+    for d in started:
+        d.kill()
+
+
+@pytest.fixture
+def pty_pair():
+    """pty_pair() -> Pty; every master is closed when the test ends."""
+    made = []
+
+    def make():
+        p = Pty()
+        made.append(p)
+        return p
+
+    yield make
+    for p in made:
+        p.close()
+
+
+@pytest.fixture(scope="session")
+def tlog_dir() -> Path:
+    d = Path(os.environ.get("MAVBOND_TLOG_DIR", REPO.parent / "shared" / "data" / "tlogs"))
+    if not d.is_dir() or not any(d.iterdir()):
+        pytest.skip(f"no recorded telemetry in {d} (set MAVBOND_TLOG_DIR to a directory of "
+                    f".tlog/.mavlink files)")
+    return d
+
+
+def tlog_files():
+    d = Path(os.environ.get("MAVBOND_TLOG_DIR", REPO.parent / "shared" / "data" / "tlogs"))
+    if not d.is_dir():
+        return []
+    return sorted(p for p in d.iterdir() if p.suffix in (".tlog", ".mavlink"))
