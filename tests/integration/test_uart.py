@@ -1,0 +1,147 @@
+"""UART endpoints on real pseudo-terminals: both directions, standard and non-standard baud
+rates, a device that goes away, and a device that appears after the daemon started."""
+from __future__ import annotations
+
+import os
+import re
+import time
+
+import pytest
+
+from helpers import (HOST, FrameMaker, drain, free_port, recv_datagrams, split_stream, uart,
+                     udp_client, udp_server, udp_socket)
+
+
+def uart_warnings(log: str, name: str) -> list:
+    return [l for l in log.splitlines() if f"[uart:{name}]" in l and "warning" in l]
+
+
+@pytest.mark.parametrize("baud", [921600, 1500000])
+def test_uart_pty_both_directions(start_daemon, pty_pair, baud):
+    pty = pty_pair()
+    gcs_port = free_port()
+    d = start_daemon([uart("u", pty.path, baud=baud, flow_control=False),
+                      udp_server("gcs", gcs_port)])
+    d.wait_log(rf"\[uart:u\] {re.escape(pty.path)} open at {baud} baud")
+    gcs = udp_socket()
+    gm, vm = FrameMaker(255, 190), FrameMaker(1, 1)
+    try:
+        # UDP -> pty
+        hb = gm.heartbeat(6)
+        gcs.sendto(hb, (HOST, gcs_port))
+        cmds = [gm.command_long(1, 1, 400 + i) for i in range(20)]
+        for c in cmds:
+            gcs.sendto(c, (HOST, gcs_port))
+        want = [hb] + cmds
+        out = pty.read_for(timeout=3, until=lambda b: len(split_stream(b)) >= len(want))
+        print(f"\n{baud} baud: UDP -> pty {len(split_stream(out))}/{len(want)} frames")
+        assert split_stream(out) == want
+
+        # pty -> UDP: 2000 frames written in large chunks
+        frames = vm.telemetry(2000)
+        pty.write_all(b"".join(frames))
+        got = [f for dg in recv_datagrams(gcs, len(frames), timeout=10) for f in split_stream(dg)]
+        print(f"{baud} baud: pty -> UDP {len(got)}/{len(frames)} frames")
+        assert got == frames
+        st = d.stats()
+        print("stats:", st)
+        assert st["u"]["rx_frames"] == len(frames) and st["u"]["tx_frames"] == len(want)
+        assert st["u"]["garbage_bytes"] == 0 and st["u"]["crc_errors"] == 0
+    finally:
+        gcs.close()
+    assert d.stop() == 0
+
+
+def test_uart_pty_closed_daemon_keeps_running(start_daemon, pty_pair):
+    pty = pty_pair()
+    gcs_port, veh_port = free_port(), free_port()
+    veh = udp_socket(veh_port)
+    d = start_daemon([uart("u", pty.path, baud=921600, reconnect_min="100ms",
+                           reconnect_max="500ms"),
+                      udp_server("gcs", gcs_port), udp_client("ap", veh_port)])
+    d.wait_log(r"\[uart:u\] .* open at 921600 baud")
+    gcs = udp_socket()
+    gm, vm = FrameMaker(255, 190), FrameMaker(1, 1)
+    try:
+        pty.write_all(vm.heartbeat())
+        assert len(recv_datagrams(veh, 1, timeout=2)) == 1
+        pty.close()  # the "device" is gone
+        d.wait_log(r"\[uart:u\] .* lost")
+        time.sleep(1.5)  # several retries at 100..500 ms
+        assert d.alive()
+        warnings = uart_warnings(d.log(), "u")
+        print(f"\nwarnings after the pty closed: {warnings}")
+        assert len(warnings) == 1, "the loss must be logged once, not at every retry"
+
+        # The other endpoints still route, both ways.
+        drain(veh)
+        hb = gm.heartbeat(6)
+        gcs.sendto(hb, (HOST, gcs_port))
+        data, daemon_ap = veh.recvfrom(65536)
+        assert split_stream(data) == [hb]
+        frames = vm.telemetry(100)
+        for f in frames:
+            veh.sendto(f, daemon_ap)
+        got = [f for dg in recv_datagrams(gcs, len(frames), timeout=3) for f in split_stream(dg)]
+        print(f"UDP routing with the UART gone: {len(got)}/{len(frames)}")
+        assert got == frames
+        st = d.stats()
+        print("stats:", st)
+        # what was routed to the closed UART (the GCS heartbeat, the telemetry) is counted
+        assert st["u"]["tx_dropped"] == 1 + len(frames) and st["u"]["tx_frames"] == 0
+    finally:
+        gcs.close()
+        veh.close()
+    assert d.stop() == 0
+
+
+def test_uart_missing_device_appears_later(start_daemon, pty_pair, tmp_path):
+    fake = tmp_path / "ttyFAKE"
+    gcs_port, veh_port = free_port(), free_port()
+    veh = udp_socket(veh_port)
+    d = start_daemon([uart("u", str(fake), baud=1500000, reconnect_min="100ms",
+                           reconnect_max="500ms"),
+                      udp_server("gcs", gcs_port), udp_client("ap", veh_port)])
+    gcs = udp_socket()
+    gm, vm = FrameMaker(255, 190), FrameMaker(1, 1)
+    try:
+        d.wait_log(r"\[uart:u\] .*ttyFAKE.*retrying")
+        # Other endpoints route while the device is missing.
+        hb = gm.heartbeat(6)
+        gcs.sendto(hb, (HOST, gcs_port))
+        data, daemon_ap = veh.recvfrom(65536)
+        assert split_stream(data) == [hb]
+        frames = vm.telemetry(50)
+        for f in frames:
+            veh.sendto(f, daemon_ap)
+        got = [f for dg in recv_datagrams(gcs, len(frames), timeout=3) for f in split_stream(dg)]
+        assert got == frames
+        time.sleep(1.2)
+        warnings = uart_warnings(d.log(), "u")
+        print(f"\nwarnings while missing: {warnings}")
+        assert len(warnings) == 1, "a missing device is logged once"
+
+        # The device appears.
+        pty = pty_pair()
+        t0 = time.monotonic()
+        os.symlink(pty.path, fake)
+        d.wait_log(r"\[uart:u\] .*ttyFAKE open at 1500000 baud", timeout=3)
+        print(f"opened {time.monotonic() - t0:.2f}s after the device appeared")
+
+        uframes = vm.telemetry(200)
+        pty.write_all(b"".join(uframes))
+        got = [f for dg in recv_datagrams(gcs, len(uframes), timeout=5) for f in split_stream(dg)]
+        print(f"pty -> UDP: {len(got)}/{len(uframes)}")
+        assert got == uframes
+        cmd = gm.command_long(1, 1)
+        gcs.sendto(cmd, (HOST, gcs_port))
+        out = pty.read_for(timeout=3, until=lambda b: len(split_stream(b)) >= 1)
+        assert split_stream(out) == [cmd]
+        st = d.stats()
+        print("stats:", st)
+        assert st["u"]["rx_frames"] == len(uframes) and st["u"]["tx_frames"] == 1
+        assert st["u"]["tx_dropped"] == 1 + len(frames)  # routed to it while it was missing
+    finally:
+        gcs.close()
+        veh.close()
+    assert d.stop() == 0
