@@ -6,8 +6,8 @@ import time
 
 from pymavlink import mavutil
 
-from helpers import (BIG_RCVBUF, HOST, FrameMaker, drain, free_port, recv_datagrams, split_stream,
-                     udp_client, udp_server, udp_socket)
+from helpers import (BIG_RCVBUF, HOST, FrameMaker, corrupt_crc, drain, free_port, raw_v2_frame,
+                     recv_datagrams, split_stream, udp_client, udp_server, udp_socket)
 
 
 def recv_msgs(conn, count: int, timeout: float = 5.0, type_=None):
@@ -163,5 +163,42 @@ def test_several_gcs_peers_broadcast_targeted_no_echo(start_daemon):
     finally:
         for p in peers:
             p.close()
+        veh.close()
+    assert d.stop() == 0
+
+
+def test_routes_learned_only_from_crc_checked_frames(start_daemon):
+    """A frame whose CRC could not be checked (unknown id) or failed teaches no route: a
+    reply targeted at its sender goes everywhere, as for any unknown target. A good frame
+    does teach one."""
+    gcs_port, veh_port = free_port(), free_port()
+    veh = udp_socket(veh_port)
+    d = start_daemon([udp_server("gcs", gcs_port), udp_client("ap", veh_port)])
+    a, b = udp_socket(), udp_socket()
+    vm = FrameMaker(1, 1)
+    try:
+        a.sendto(FrameMaker(255, 190).heartbeat(6), (HOST, gcs_port))
+        _, daemon_ap = veh.recvfrom(65536)
+        b.sendto(FrameMaker(254, 190).heartbeat(6), (HOST, gcs_port))
+        recv_datagrams(veh, 1, timeout=2)
+        # From peer A: an unknown-id frame from (77,1), a bad-CRC HEARTBEAT from (78,1), a
+        # good HEARTBEAT from (79,1).
+        a.sendto(raw_v2_frame(50000, b"custom", sysid=77, compid=1), (HOST, gcs_port))
+        a.sendto(corrupt_crc(FrameMaker(78, 1).heartbeat()), (HOST, gcs_port))
+        a.sendto(FrameMaker(79, 1).heartbeat(), (HOST, gcs_port))
+        recv_datagrams(veh, 2, timeout=2)
+        drain(a), drain(b)
+        seen = {}
+        for target in (77, 78, 79):
+            ack = vm.pack(vm.mod.MAVLink_mission_ack_message(target, 1, 0))
+            veh.sendto(ack, daemon_ap)
+            seen[target] = [len(recv_datagrams(p, None, timeout=1, quiet=0.3)) for p in (a, b)]
+        print(f"\nMISSION_ACK to 77 (unknown id), 78 (bad CRC), 79 (good): peers A/B got {seen}")
+        assert seen[77] == [1, 1], "an unknown-id frame must not teach a route"
+        assert seen[78] == [1, 1], "a bad-CRC frame must not teach a route"
+        assert seen[79] == [1, 0], "a good frame teaches a route"
+    finally:
+        a.close()
+        b.close()
         veh.close()
     assert d.stop() == 0
