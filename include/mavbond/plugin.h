@@ -1,0 +1,177 @@
+/* mavbond filter plugin ABI: the only header a plugin needs (plain C, no yaml-cpp, no C++).
+ *
+ * A plugin is a shared object exporting one symbol, MAVBOND_PLUGIN_ENTRY_SYMBOL, a function
+ * returning a descriptor. The host refuses a plugin whose abi_version differs from its own,
+ * whose struct_size is smaller than it knows, whose name differs from its file name, or that
+ * lacks create/destroy. Plugins run on the loop thread: they never block, never start threads,
+ * and use the host's timers and clock.
+ *
+ * Lifetimes: every pointer the host passes to a hook is valid only during that call, unless
+ * said otherwise. Strings are NUL-terminated UTF-8.
+ */
+#ifndef MAVBOND_PLUGIN_H
+#define MAVBOND_PLUGIN_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Bumped on every incompatible change; the host accepts exactly its own version. */
+#define MAVBOND_PLUGIN_ABI_VERSION 1u
+#define MAVBOND_PLUGIN_ENTRY_SYMBOL "mavbond_plugin_entry"
+
+#define MAVBOND_EXPORT __attribute__((visibility("default")))
+
+typedef enum mavbond_verdict {
+    MAVBOND_PASS = 0, /* on to the next filter, then routing or sending */
+    MAVBOND_DROP = 1  /* stop here; the host counts it against this filter */
+} mavbond_verdict;
+
+typedef enum mavbond_log_level {
+    MAVBOND_LOG_ERROR = 3,
+    MAVBOND_LOG_WARNING = 4,
+    MAVBOND_LOG_NOTICE = 5,
+    MAVBOND_LOG_INFO = 6,
+    MAVBOND_LOG_DEBUG = 7
+} mavbond_log_level;
+
+/* A frame whose framing and CRC the host has checked (crc_checked 0: unknown msgid). */
+typedef struct mavbond_frame {
+    uint32_t struct_size;
+    uint8_t version;          /* 1 or 2 */
+    uint8_t incompat_flags;   /* 0x01: signed */
+    uint8_t seq;
+    uint8_t sysid;
+    uint8_t compid;
+    uint8_t crc_checked;
+    int16_t target_system;    /* -1: the message has no such field */
+    int16_t target_component; /* -1: the message has no such field */
+    uint32_t msgid;
+    const uint8_t *raw;       /* the whole frame as on the wire */
+    uint32_t raw_len;
+    const uint8_t *payload;   /* the payload as on the wire (v2: possibly truncated) */
+    uint32_t payload_len;
+    int16_t timestamp_offset; /* wire offset of time_boot_ms / time_usec in the payload, -1: none */
+    uint8_t timestamp_size;   /* 4 (time_boot_ms, ms) or 8 (time_usec, us); 0: none */
+    uint64_t rx_time_ns;      /* CLOCK_MONOTONIC, read once per receive batch */
+} mavbond_frame;
+
+/* Filled by filters for the ones after them in the chain (one per frame, zeroed at ingress). */
+typedef struct mavbond_frame_notes {
+    uint32_t struct_size;
+    uint32_t flags;           /* MAVBOND_NOTE_* */
+    uint64_t hash[2];         /* the frame's key hash, when MAVBOND_NOTE_HASHED */
+    uint32_t first_link_id;   /* MAVBOND_NOTE_DUPLICATE: the link the first copy came on */
+    int64_t skew_ns;          /* MAVBOND_NOTE_DUPLICATE: this copy's arrival minus the first's */
+} mavbond_frame_notes;
+
+#define MAVBOND_NOTE_HASHED 0x1u
+#define MAVBOND_NOTE_DUPLICATE 0x2u /* a copy of a frame already delivered from another link */
+#define MAVBOND_NOTE_STALE 0x4u     /* older than a sample already delivered */
+
+#define MAVBOND_NO_BOND UINT32_MAX
+
+/* An endpoint (route target) as plugins see it. Ids are dense and stable while it exists. */
+typedef struct mavbond_link {
+    uint32_t struct_size;
+    uint32_t id;
+    const char *name;         /* "radio", or "gcs@127.0.0.1:5555" for a learned UDP peer */
+    uint32_t bond_id;         /* MAVBOND_NO_BOND when not in a bond */
+    const char *bond_name;    /* NULL when not in a bond */
+    uint32_t priority;        /* position of the link among its bond's members (0 first) */
+} mavbond_link;
+
+typedef enum mavbond_link_event {
+    MAVBOND_LINK_ADDED = 0,
+    MAVBOND_LINK_REMOVED = 1
+} mavbond_link_event;
+
+/* Option types a plugin declares; the host validates the YAML against them before create. */
+typedef enum mavbond_option_type {
+    MAVBOND_OPT_BOOL = 1,
+    MAVBOND_OPT_INT = 2,      /* 64-bit signed */
+    MAVBOND_OPT_DURATION = 3, /* "250ms", "2s": read as nanoseconds */
+    MAVBOND_OPT_PERCENT = 4,  /* "5%": read as a fraction (0.05) */
+    MAVBOND_OPT_STRING = 5,
+    MAVBOND_OPT_STRINGS = 6   /* a YAML sequence of strings */
+} mavbond_option_type;
+
+typedef struct mavbond_option {
+    const char *key;
+    mavbond_option_type type;
+    const char *default_value; /* YAML text; NULL: no default (absent unless given) */
+    const char *help;
+} mavbond_option;
+
+typedef struct mavbond_host mavbond_host;     /* opaque: one per filter instance */
+typedef struct mavbond_config mavbond_config; /* opaque: this instance's options */
+
+typedef struct mavbond_host_api {
+    uint32_t struct_size;
+    /* Logs one line, prefixed by the host with "[filter:NAME]". */
+    void (*log)(mavbond_host *h, mavbond_log_level level, const char *message);
+    /* The monotonic clock in nanoseconds (cached per loop round). */
+    uint64_t (*now_ns)(mavbond_host *h);
+    /* Calls cb(user) every period_ns until it returns 0 or the timer is cancelled.
+     * Returns 0 and a timer id, or -errno. */
+    int (*timer_add)(mavbond_host *h, uint64_t period_ns, int (*cb)(void *user), void *user,
+                     uint64_t *out_id);
+    void (*timer_cancel)(mavbond_host *h, uint64_t id);
+    /* Links currently known, in id order: fills up to max, returns how many exist. */
+    size_t (*links)(mavbond_host *h, const mavbond_link **out, size_t max);
+    /* The id of a bond by name, or -ENOENT. */
+    int (*bond_by_name)(mavbond_host *h, const char *name, uint32_t *out_bond_id);
+    /* Makes link_id the bond's active link (for `tx: active` bonds). -EINVAL if not a member. */
+    int (*set_active_link)(mavbond_host *h, uint32_t bond_id, uint32_t link_id);
+
+    /* Typed option values (defaults applied by the host). 0, or -ENOENT when absent. */
+    int (*cfg_bool)(const mavbond_config *c, const char *key, int *out);
+    int (*cfg_int)(const mavbond_config *c, const char *key, int64_t *out);
+    int (*cfg_duration_ns)(const mavbond_config *c, const char *key, uint64_t *out);
+    int (*cfg_percent)(const mavbond_config *c, const char *key, double *out);
+    int (*cfg_string)(const mavbond_config *c, const char *key, const char **out);
+    /* out is valid for the instance's life. */
+    int (*cfg_strings)(const mavbond_config *c, const char *key, const char *const **out,
+                       size_t *count);
+    /* Writes "file:line:column: filter 'NAME': option 'KEY': MESSAGE" into err (for create). */
+    void (*cfg_error)(const mavbond_config *c, const char *key, const char *message, char *err,
+                      size_t err_len);
+    /* The bonds (names) and endpoints (names) this instance is scoped to; NULL/0: everywhere. */
+    void (*scope)(const mavbond_config *c, const char *const **bonds, size_t *bond_count,
+                  const char *const **endpoints, size_t *endpoint_count);
+} mavbond_host_api;
+
+typedef struct mavbond_plugin_descriptor {
+    uint32_t abi_version;           /* MAVBOND_PLUGIN_ABI_VERSION at build time */
+    uint32_t struct_size;           /* sizeof(mavbond_plugin_descriptor) at build time */
+    const char *name;               /* equals the file name (NAME.so) and the YAML `plugin:` */
+    const char *version;
+    const char *description;
+    const mavbond_option *options;  /* terminated by an entry with key NULL */
+    /* Builds an instance. Returns 0 and *out_self, or non-zero with a message in err.
+     * The api and h pointers stay valid for the instance's life. */
+    int (*create)(const mavbond_host_api *api, mavbond_host *h, const mavbond_config *cfg,
+                  void **out_self, char *err, size_t err_len);
+    void (*destroy)(void *self);
+    /* Every frame received on a link in scope, after CRC checks, before routing. May be NULL. */
+    mavbond_verdict (*on_ingress)(void *self, const mavbond_frame *f, mavbond_frame_notes *notes,
+                                  const mavbond_link *from);
+    /* Every (frame, destination link in scope) before the frame is queued. May be NULL. */
+    mavbond_verdict (*on_egress)(void *self, const mavbond_frame *f, const mavbond_link *to);
+    /* Links come and go (TCP clients, UDP peers). May be NULL. */
+    void (*on_link)(void *self, const mavbond_link *link, mavbond_link_event event);
+    /* Writes a JSON object describing the instance's state into buf (for the status socket);
+     * returns the length it needed. May be NULL. */
+    size_t (*status_json)(void *self, char *buf, size_t len);
+} mavbond_plugin_descriptor;
+
+typedef const mavbond_plugin_descriptor *(*mavbond_plugin_entry_fn)(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* MAVBOND_PLUGIN_H */
