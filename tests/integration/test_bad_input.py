@@ -113,3 +113,67 @@ def test_bad_input_pty_stream(start_daemon, pty_pair):
     assert st["crc_errors"] >= n_bad
     assert st["garbage_bytes"] == junk
     assert d.stop() == 0
+
+
+def test_empty_and_noise_datagrams(start_daemon):
+    """An empty datagram and datagrams of noise change nothing for the frames after them;
+    the noise is counted. (Datagrams larger than 2 KiB: see the next test.)"""
+    import os as _os
+    vm = FrameMaker(1, 1)
+    in_port, out_port = free_port(), free_port()
+    rx = udp_socket(out_port)
+    d = start_daemon([udp_server("in", in_port), udp_client("out", out_port)])
+    tx = udp_socket()
+    noise = bytes(b for b in _os.urandom(3000) if b not in (0xFD, 0xFE))[:1800]
+    frames = [vm.heartbeat(), vm.attitude(1), vm.sys_status()]
+    try:
+        tx.sendto(frames[0], (HOST, in_port))
+        tx.sendto(b"", (HOST, in_port))
+        tx.sendto(noise, (HOST, in_port))
+        tx.sendto(noise[:1000] + frames[1], (HOST, in_port))
+        tx.sendto(frames[2], (HOST, in_port))
+        got = [f for dg in recv_datagrams(rx, 3, timeout=3) for f in split_stream(dg)]
+        st = d.settle_stats(lambda s: s["in"]["garbage_bytes"])["in"]
+    finally:
+        tx.close()
+        rx.close()
+    print(f"\nempty + 1800-byte noise datagrams: delivered {len(got)}/3, "
+          f"garbage_bytes={st['garbage_bytes']}")
+    assert got == frames
+    assert st["garbage_bytes"] == len(noise) + 1000
+    assert d.alive()
+    assert d.stop() == 0
+
+
+def test_datagram_larger_than_2k_with_many_frames(start_daemon):
+    """A datagram may carry many frames (e.g. socat or a serial-to-UDP bridge forwards
+    whatever a read returned, up to 8 KiB or more). All of them must be delivered, and if
+    the daemon cannot take a datagram whole, what it cut must at least be counted.
+    Also a 65,000-byte datagram of noise is counted in full."""
+    import os as _os
+    vm = FrameMaker(1, 1)
+    frames = vm.telemetry(200)  # 7,800 bytes
+    big = b"".join(frames)
+    noise = bytes(b for b in _os.urandom(70000) if b not in (0xFD, 0xFE))[:65000]
+    in_port, out_port = free_port(), free_port()
+    rx = udp_socket(out_port)
+    d = start_daemon([udp_server("in", in_port), udp_client("out", out_port)])
+    tx = udp_socket()
+    try:
+        tx.sendto(big, (HOST, in_port))
+        got = [f for dg in recv_datagrams(rx, len(frames), timeout=2) for f in split_stream(dg)]
+        st1 = d.settle_stats(lambda s: s["in"]["rx_bytes"])["in"]
+        tx.sendto(noise, (HOST, in_port))
+        st2 = d.settle_stats(lambda s: s["in"]["garbage_bytes"])["in"]
+    finally:
+        tx.close()
+        rx.close()
+    print(f"\none {len(big)}-byte datagram of {len(frames)} frames: delivered {len(got)}; "
+          f"in rx_frames={st1['rx_frames']} rx_bytes={st1['rx_bytes']} "
+          f"garbage_bytes={st1['garbage_bytes']}; after a {len(noise)}-byte noise datagram "
+          f"garbage_bytes={st2['garbage_bytes']}")
+    accounted = st1["rx_bytes"] + st1["garbage_bytes"]
+    assert accounted == len(big), (f"{len(big) - accounted} bytes of the datagram vanished "
+                                   f"without being counted")
+    assert got == frames, f"{len(frames) - len(got)} good frames lost from one large datagram"
+    assert st2["garbage_bytes"] - st1["garbage_bytes"] == len(noise)

@@ -124,3 +124,35 @@ def test_tcp_client_connects_and_reconnects(start_daemon):
         listener.close()
         gcs.close()
     assert d.stop() == 0
+
+
+def test_tcp_server_several_clients_no_echo(start_daemon):
+    """Each accepted client is an endpoint: a broadcast from one client reaches the others,
+    never itself; a frame targeted at a system heard on client 2 reaches client 2 only."""
+    tcp_port = free_port(socket.SOCK_STREAM)
+    d = start_daemon([tcp_server("t", tcp_port)])
+    clients = []
+    try:
+        for i in range(3):
+            clients.append(socket.create_connection((HOST, tcp_port), timeout=3))
+            d.wait_log(r"\[tcp:t\] client .* connected", count=i + 1)
+        makers = [FrameMaker(10 + i, 1) for i in range(3)]
+        hbs = [m.heartbeat() for m in makers]
+        for c, hb in zip(clients, hbs):
+            c.sendall(hb)
+            time.sleep(0.1)
+        seen = [read_stream_frames(c, 3, timeout=0.7) for c in clients]
+        print(f"\nheartbeats seen by TCP clients: {[len(s) for s in seen]}")
+        for i, s in enumerate(seen):
+            assert s == [hb for j, hb in enumerate(hbs) if j != i]
+        cmd = makers[0].command_long(12, 1)
+        clients[0].sendall(cmd)
+        seen = [read_stream_frames(c, 1, timeout=0.7) for c in clients]
+        print(f"COMMAND_LONG to (12,1): seen by {[len(s) for s in seen]}")
+        assert seen == [[], [], [cmd]]
+        st = d.stats()["t"]
+        assert st["rx_frames"] == 4 and st["tx_frames"] == 7
+    finally:
+        for c in clients:
+            c.close()
+    assert d.stop() == 0

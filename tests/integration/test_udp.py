@@ -202,3 +202,31 @@ def test_routes_learned_only_from_crc_checked_frames(start_daemon):
         b.close()
         veh.close()
     assert d.stop() == 0
+
+
+def test_udp_peer_timeout(start_daemon):
+    """A UDP server forgets a peer silent for peer_timeout: it gets nothing more."""
+    gcs_port, veh_port = free_port(), free_port()
+    veh = udp_socket(veh_port)
+    d = start_daemon([udp_server("gcs", gcs_port, peer_timeout="1s"), udp_client("ap", veh_port)])
+    quiet, chatty = udp_socket(), udp_socket()
+    vm = FrameMaker(1, 1)
+    try:
+        quiet.sendto(FrameMaker(255, 190).heartbeat(6), (HOST, gcs_port))
+        _, daemon_ap = veh.recvfrom(65536)
+        t_end = time.monotonic() + 2.5
+        while time.monotonic() < t_end:  # chatty keeps talking, quiet does not
+            chatty.sendto(FrameMaker(254, 190).heartbeat(6), (HOST, gcs_port))
+            time.sleep(0.2)
+        d.wait_log(r"\[udp:gcs\] peer .* forgotten", timeout=2)
+        drain(quiet), drain(chatty)
+        veh.sendto(vm.heartbeat(), daemon_ap)
+        got_quiet = recv_datagrams(quiet, None, timeout=0.7, quiet=0.5)
+        got_chatty = recv_datagrams(chatty, None, timeout=0.7, quiet=0.5)
+        print(f"\nafter peer_timeout: quiet peer got {len(got_quiet)}, chatty peer got {len(got_chatty)}")
+        assert got_quiet == [] and len(got_chatty) == 1
+    finally:
+        quiet.close()
+        chatty.close()
+        veh.close()
+    assert d.stop() == 0
