@@ -71,6 +71,11 @@ typedef struct mavbond_frame_notes {
 #define MAVBOND_NOTE_HASHED 0x1u
 #define MAVBOND_NOTE_DUPLICATE 0x2u /* a copy of a frame already delivered from another link */
 #define MAVBOND_NOTE_STALE 0x4u     /* older than a sample already delivered */
+/* An earlier filter dropped the frame. The host still shows it to the filters after that one
+ * (observers such as stats count it) and ignores their verdicts; a filter that keeps state
+ * (dedup) must not learn from it, so a frame dropped for another reason never shadows its
+ * good copy. */
+#define MAVBOND_NOTE_DROPPED 0x8u
 
 #define MAVBOND_NO_BOND UINT32_MAX
 
@@ -83,6 +88,26 @@ typedef struct mavbond_link {
     const char *bond_name;    /* NULL when not in a bond */
     uint32_t priority;        /* position of the link among its bond's members (0 first) */
 } mavbond_link;
+
+/* The host's own counters of a link (parsing and transmit), for observers such as stats. */
+typedef struct mavbond_link_counters {
+    uint32_t struct_size;
+    uint64_t rx_frames;
+    uint64_t rx_bytes;
+    uint64_t crc_errors;
+    uint64_t garbage_bytes;
+    uint64_t unknown_ids;
+    uint64_t tx_frames;
+    uint64_t tx_bytes;
+    uint64_t tx_dropped;
+} mavbond_link_counters;
+
+typedef struct mavbond_bond_state {
+    uint32_t struct_size;
+    uint32_t active_link_id;  /* UINT32_MAX: none chosen (every member sends, `tx: broadcast`) */
+    uint64_t switches;        /* changes of the active link since start */
+    uint8_t tx_active;        /* 1: `tx: active`, 0: `tx: broadcast` */
+} mavbond_bond_state;
 
 typedef enum mavbond_link_event {
     MAVBOND_LINK_ADDED = 0,
@@ -126,6 +151,10 @@ typedef struct mavbond_host_api {
     int (*bond_by_name)(mavbond_host *h, const char *name, uint32_t *out_bond_id);
     /* Makes link_id the bond's active link (for `tx: active` bonds). -EINVAL if not a member. */
     int (*set_active_link)(mavbond_host *h, uint32_t bond_id, uint32_t link_id);
+    /* The host's counters of a link, or -ENOENT. */
+    int (*link_counters)(mavbond_host *h, uint32_t link_id, mavbond_link_counters *out);
+    /* A bond's active link and switch count, or -ENOENT. */
+    int (*bond_state)(mavbond_host *h, uint32_t bond_id, mavbond_bond_state *out);
 
     /* Typed option values (defaults applied by the host). 0, or -ENOENT when absent. */
     int (*cfg_bool)(const mavbond_config *c, const char *key, int *out);

@@ -1,0 +1,77 @@
+// A host for plugin unit tests: the daemon's real option validation and API table, with a
+// manual monotonic clock, links declared by the test, and captured log lines.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "config/config.h"
+#include "filters/plugin_host.h"
+
+namespace mavbond {
+
+class FakeHost : public HostServices {
+public:
+    FakeHost();
+    ~FakeHost() override;
+
+    /// Declares a link (an endpoint), optionally a member of `bond`. Call before create().
+    const mavbond_link& add_link(const std::string& name, const std::string& bond = "");
+    /// Builds an instance of `plugin` with `options` (YAML lines of the filter entry, e.g.
+    /// "window: 500ms\nkey: content"). Returns the instance; on failure returns nullptr
+    /// and stores the message in last_error().
+    void* create(const mavbond_plugin_descriptor* plugin, const std::string& options = "");
+    const std::string& last_error() const { return last_error_; }
+
+    /// Moves the clock forward by `d`, firing due timers in order.
+    void advance(Duration d);
+    const mavbond_link& link(const std::string& name) const;
+
+    /// A frame view over `raw` (which must outlive the call it is used in).
+    mavbond_frame frame(const std::vector<uint8_t>& raw) const;
+
+    // HostServices
+    uint64_t now_ns() override { return now_ns_; }
+    uint64_t timer_add(uint64_t period_ns, std::function<bool()> fn) override;
+    void timer_cancel(uint64_t id) override;
+    size_t links(const mavbond_link** out, size_t max) override;
+    int bond_by_name(const std::string& name, uint32_t* out) override;
+    int set_active_link(uint32_t bond_id, uint32_t link_id) override;
+    int link_counters(uint32_t link_id, mavbond_link_counters* out) override;
+    int bond_state(uint32_t bond_id, mavbond_bond_state* out) override;
+    void log(mavbond_log_level level, const std::string& instance, const char* message) override;
+
+    std::vector<std::string> logs;
+    std::map<uint32_t, uint32_t> active_link;  // bond id -> link id
+    std::map<uint32_t, uint64_t> switches;     // bond id -> changes of the active link
+    std::map<uint32_t, mavbond_link_counters> counters;  // link id -> what link_counters says
+
+private:
+    struct Timer {
+        uint64_t due;
+        uint64_t period;
+        std::function<bool()> fn;
+    };
+    struct LinkSlot {
+        std::string name, bond;
+        mavbond_link link{};
+    };
+    uint64_t now_ns_ = 1'000'000'000;
+    uint64_t next_timer_ = 1;
+    std::map<uint64_t, Timer> timers_;
+    std::vector<std::unique_ptr<LinkSlot>> links_;
+    std::vector<std::string> bonds_;
+    const mavbond_plugin_descriptor* plugin_ = nullptr;
+    void* self_ = nullptr;
+    std::unique_ptr<Config> config_;
+    std::unique_ptr<PluginConfig> plugin_config_;
+    mavbond_host host_{};
+    mavbond_config config_view_{};
+    std::string last_error_;
+};
+
+}  // namespace mavbond
