@@ -138,6 +138,21 @@ def send_paced(sock: socket.socket, addr, datagrams: Iterable[bytes], burst: int
     return n
 
 
+def send_lockstep(sock: socket.socket, addr, frames: List[bytes], sink: socket.socket,
+                  burst: int = 50, timeout: float = 3.0) -> List[bytes]:
+    """Sends frames one per datagram in bursts, waiting after each burst until `sink` (a
+    socket that receives every one of them through the daemon) got them, so no socket
+    buffer overflows however slow the machine is. Returns the frames `sink` received."""
+    got: List[bytes] = []
+    for i in range(0, len(frames), burst):
+        for f in frames[i:i + burst]:
+            sock.sendto(f, addr)
+        want = min(i + burst, len(frames))
+        for dg in recv_datagrams(sink, want - len(got), timeout=timeout):
+            got += split_stream(dg)
+    return got
+
+
 # --- frames -------------------------------------------------------------------------------
 
 class FrameMaker:

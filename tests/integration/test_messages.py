@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from helpers import (HOST, FrameMaker, free_port, raw_v2_frame, recv_datagrams, split_stream,
+from helpers import (HOST, FrameMaker, free_port, raw_v2_frame, recv_datagrams, send_lockstep,
+                     split_stream,
                      tlog, udp_client, udp_server, udp_socket)
 
 
@@ -71,14 +72,12 @@ def test_block_out_attitude(start_daemon):
         data, daemon_ap = veh.recvfrom(65536)
         recv_datagrams(logger, 1, timeout=2)
         telemetry = vm.telemetry(300)
-        for f in telemetry:
-            veh.sendto(f, daemon_ap)
+        at_logger = send_lockstep(veh, daemon_ap, telemetry, logger)
         attitude_id = vm.mod.MAVLINK_MSG_ID_ATTITUDE
         want = [f for f in telemetry if tlog.msgid(f) != attitude_id]
         n_att = len(telemetry) - len(want)
         got = [f for dg in recv_datagrams(gcs, len(want), timeout=3) for f in split_stream(dg)]
         got += [f for dg in recv_datagrams(gcs, None, timeout=0.3) for f in split_stream(dg)]
-        at_logger = [f for dg in recv_datagrams(logger, len(telemetry), timeout=3) for f in split_stream(dg)]
         st = d.stats()
     finally:
         gcs.close()
