@@ -12,9 +12,9 @@ namespace mavbond {
 
 // --- DatagramBatch -------------------------------------------------------------------------
 
-DatagramBatch::DatagramBatch() : buffers_(kCount) {
+DatagramBatch::DatagramBatch() : arena_(std::make_unique_for_overwrite<uint8_t[]>(kCount * kSize)) {
     for (size_t i = 0; i < kCount; i++) {
-        iovs_[i] = iovec{buffers_[i].data(), kSize};
+        iovs_[i] = iovec{slot(i), kSize};
         msgs_[i].msg_hdr.msg_iov = &iovs_[i];
         msgs_[i].msg_hdr.msg_iovlen = 1;
         msgs_[i].msg_hdr.msg_name = &addrs_[i];

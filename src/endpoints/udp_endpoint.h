@@ -15,20 +15,22 @@
 
 namespace mavbond {
 
-/// A batch of datagrams received with one recvmmsg.
+/// A batch of datagrams received with one recvmmsg. Every slot takes the largest datagram
+/// UDP can carry (a bridge may pack many frames into one), yet costs memory only for what is
+/// written: the arena is never initialised, so untouched pages are never made resident.
 class DatagramBatch {
 public:
     static constexpr size_t kCount = 32;
-    static constexpr size_t kSize = 2048;
+    static constexpr size_t kSize = 65536;
     DatagramBatch();
     /// Receives up to kCount datagrams; returns how many, 0 when none, -errno on error.
     int receive(int fd);
-    std::span<const uint8_t> data(size_t i) const { return {buffers_[i].data(), msgs_[i].msg_len}; }
+    std::span<const uint8_t> data(size_t i) const { return {slot(i), msgs_[i].msg_len}; }
     const sockaddr_in& from(size_t i) const { return addrs_[i]; }
-    bool truncated(size_t i) const { return (msgs_[i].msg_hdr.msg_flags & MSG_TRUNC) != 0; }
 
 private:
-    std::vector<std::array<uint8_t, kSize>> buffers_;
+    uint8_t* slot(size_t i) const { return arena_.get() + i * kSize; }
+    std::unique_ptr<uint8_t[]> arena_;
     std::array<mmsghdr, kCount> msgs_{};
     std::array<iovec, kCount> iovs_{};
     std::array<sockaddr_in, kCount> addrs_{};
