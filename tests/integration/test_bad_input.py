@@ -6,8 +6,7 @@ import random
 from typing import List, Tuple
 
 from helpers import (HOST, FrameMaker, corrupt_crc, free_port, recv_datagrams, send_paced,
-                     split_stream,
-                     uart, udp_client, udp_server, udp_socket)
+                     split_stream, uart, udp_client, udp_server, udp_socket)
 
 Piece = Tuple[str, bytes]  # ("good" | "garbage" | "trunc" | "badcrc", bytes)
 

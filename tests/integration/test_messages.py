@@ -4,8 +4,7 @@ from __future__ import annotations
 import pytest
 
 from helpers import (HOST, FrameMaker, free_port, raw_v2_frame, recv_datagrams, send_lockstep,
-                     split_stream,
-                     tlog, udp_client, udp_server, udp_socket)
+                     split_stream, tlog, udp_client, udp_server, udp_socket)
 
 
 def unknown_frames():
