@@ -6,27 +6,67 @@
 
 namespace mavbond {
 
+Router::Router(Duration route_timeout, const std::vector<BondConfig>& bonds)
+    : route_timeout_(route_timeout) {
+    for (const auto& b : bonds)
+        bonds_.push_back(Bond{b.name, b.tx == BondConfig::Tx::Active});
+}
+
+uint32_t Router::bond_index(const std::string& name) const {
+    for (size_t i = 0; i < bonds_.size(); i++) {
+        if (bonds_[i].name == name)
+            return static_cast<uint32_t>(i);
+    }
+    return kNoBond;
+}
+
+uint32_t Router::bond_of(const Endpoint& endpoint) const {
+    return endpoint.id() < bond_of_.size() ? bond_of_[endpoint.id()] : kNoBond;
+}
+
 void Router::add(Endpoint& endpoint) {
     auto free_slot = std::find(endpoints_.begin(), endpoints_.end(), nullptr);
     auto id = static_cast<uint32_t>(free_slot - endpoints_.begin());
     if (free_slot == endpoints_.end()) {
         endpoints_.push_back(&endpoint);
         routes_.emplace_back();
+        bond_of_.push_back(kNoBond);
     } else {
         *free_slot = &endpoint;
         routes_[id].clear();
     }
+    bond_of_[id] = endpoint.config().bond.empty() ? kNoBond : bond_index(endpoint.config().bond);
     endpoint.set_id(id);
+    if (filter_)
+        filter_->on_endpoint(endpoint, true);
 }
 
 void Router::remove(Endpoint& endpoint) {
     uint32_t id = endpoint.id();
     if (id >= endpoints_.size() || endpoints_[id] != &endpoint)
         return;
+    if (filter_)
+        filter_->on_endpoint(endpoint, false);
     endpoints_[id] = nullptr;
     routes_[id].clear();
+    for (auto& bond : bonds_) {
+        if (bond.active_link == id)
+            bond.active_link = kNoLink;
+    }
+    bond_of_[id] = kNoBond;
     dirty_.erase(std::remove(dirty_.begin(), dirty_.end(), &endpoint), dirty_.end());
     endpoint.set_id(Endpoint::kNoId);
+}
+
+bool Router::set_active_link(uint32_t bond, uint32_t link) {
+    if (bond >= bonds_.size() || link >= endpoints_.size() || !endpoints_[link] ||
+        bond_of_[link] != bond)
+        return false;
+    if (bonds_[bond].active_link != link) {
+        bonds_[bond].active_link = link;
+        bonds_[bond].switches++;
+    }
+    return true;
 }
 
 void Router::learn(Endpoint& from, uint8_t sysid, uint8_t compid, TimePoint now) {
@@ -48,6 +88,37 @@ bool Router::knows(const Endpoint& endpoint, uint8_t sysid, uint8_t compid) cons
             return true;
     }
     return false;
+}
+
+bool Router::target_knows(const Endpoint& to, uint8_t sysid, uint8_t compid) const {
+    uint32_t bond = bond_of_[to.id()];
+    if (bond == kNoBond)
+        return knows(to, sysid, compid);
+    for (size_t id = 0; id < endpoints_.size(); id++) {
+        if (endpoints_[id] && bond_of_[id] == bond && knows(*endpoints_[id], sysid, compid))
+            return true;
+    }
+    return false;
+}
+
+bool Router::same_target(const Endpoint& a, const Endpoint& b) const {
+    if (&a == &b)
+        return true;
+    uint32_t bond = bond_of_[a.id()];
+    return bond != kNoBond && bond == bond_of_[b.id()];
+}
+
+bool Router::may_send(const Endpoint& from, const Endpoint& to) const {
+    // Never back to the source, and never reflected from one link of a bond into another.
+    if (same_target(from, to))
+        return false;
+    uint32_t bond = bond_of_[to.id()];
+    if (bond == kNoBond)
+        return true;
+    const Bond& b = bonds_[bond];
+    // Until the link-switch filter has chosen, an active-only bond sends on every member
+    // rather than on none.
+    return !b.tx_active || b.active_link == kNoLink || b.active_link == to.id();
 }
 
 void Router::expire_routes(TimePoint now) {
@@ -75,21 +146,23 @@ void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
         return;
     frames_routed_++;
 
-    bool targeted = !frame.is_broadcast();
-    if (targeted) {
+    if (!frame.is_broadcast()) {
         auto ts = static_cast<uint8_t>(frame.target_system);
         auto tc = static_cast<uint8_t>(frame.target_component > 0 ? frame.target_component : 0);
         // Prefer where the exact component was heard, then where the system was heard;
         // a target heard nowhere is sent everywhere, as a broadcast is.
         for (uint8_t want_comp : {tc, uint8_t{0}}) {
-            bool sent = false;
+            bool found = false;
             for (Endpoint* to : endpoints_) {
-                if (to && to != &from && knows(*to, ts, want_comp)) {
+                if (!to || same_target(from, *to))
+                    continue;
+                if (!target_knows(*to, ts, want_comp))
+                    continue;
+                found = true;
+                if (may_send(from, *to))
                     deliver(frame, *to, now);
-                    sent = true;
-                }
             }
-            if (sent)
+            if (found)
                 return;
             if (want_comp == 0)
                 break;
@@ -97,7 +170,7 @@ void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
     }
     bool any = false;
     for (Endpoint* to : endpoints_) {
-        if (to && to != &from) {
+        if (to && may_send(from, *to)) {
             deliver(frame, *to, now);
             any = true;
         }
@@ -108,7 +181,7 @@ void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
 
 void Router::end_batch() {
     // flush() may call back into remove() (a connection closing on a write error), which
-    // edits dirty_: take the list first.
+    // edits dirty_: take from the back until it is empty.
     while (!dirty_.empty()) {
         Endpoint* e = dirty_.back();
         dirty_.pop_back();

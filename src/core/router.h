@@ -1,11 +1,18 @@
 // mavlink-router semantics: learn which (sysid, compid) was heard on which endpoint (only from
 // frames whose CRC was checked), forget it after route_timeout; a targeted frame goes where its
 // target was heard, a broadcast (or an unknown target) to every endpoint but its source.
+//
+// Bonds: the links of a bond act as one endpoint. What is learned on any member is reachable
+// through the bond, and a frame never goes back into the bond it came from (no reflection from
+// link A to link B). A bond sends on every member (`tx: broadcast`) or only on its active one
+// (`tx: active`, chosen by the link-switch filter).
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
+#include "config/config.h"
 #include "core/clock.h"
 #include "mavlink/frame.h"
 
@@ -21,14 +28,26 @@ public:
     virtual ~FrameFilter() = default;
     virtual Verdict on_ingress(const Frame& frame, Endpoint& from, TimePoint now) = 0;
     virtual Verdict on_egress(const Frame& frame, Endpoint& to, TimePoint now) = 0;
+    /// An endpoint was registered (added) or is about to go away (!added).
+    virtual void on_endpoint(Endpoint& endpoint, bool added) = 0;
 };
 
 class Router {
 public:
-    explicit Router(Duration route_timeout) : route_timeout_(route_timeout) {}
+    static constexpr uint32_t kNoBond = UINT32_MAX;
+    static constexpr uint32_t kNoLink = UINT32_MAX;
 
-    /// Registers a route target and gives it an id. The endpoint must call remove() before
-    /// it is destroyed.
+    struct Bond {
+        std::string name;
+        bool tx_active = false;
+        uint32_t active_link = kNoLink;  // endpoint id; kNoLink: none chosen yet
+        uint64_t switches = 0;
+    };
+
+    Router(Duration route_timeout, const std::vector<BondConfig>& bonds = {});
+
+    /// Registers a route target and gives it an id (and its bond, from its config). The
+    /// endpoint must call remove() before it is destroyed.
     void add(Endpoint& endpoint);
     void remove(Endpoint& endpoint);
 
@@ -44,6 +63,12 @@ public:
     void set_filter(FrameFilter* filter) { filter_ = filter; }
 
     const std::vector<Endpoint*>& endpoints() const { return endpoints_; }
+    const std::vector<Bond>& bonds() const { return bonds_; }
+    /// The bond index of an endpoint, or kNoBond.
+    uint32_t bond_of(const Endpoint& endpoint) const;
+    uint32_t bond_index(const std::string& name) const;
+    /// Makes `link` the active member of `bond`; false if it is not a member.
+    bool set_active_link(uint32_t bond, uint32_t link);
     /// Whether (sysid, compid) was heard on `endpoint` (compid 0: any component).
     bool knows(const Endpoint& endpoint, uint8_t sysid, uint8_t compid) const;
     uint64_t frames_routed() const { return frames_routed_; }
@@ -56,10 +81,19 @@ private:
         TimePoint last_heard;
     };
     void learn(Endpoint& from, uint8_t sysid, uint8_t compid, TimePoint now);
+    /// Whether the route target `to` belongs to (itself, or its whole bond) knows the target.
+    bool target_knows(const Endpoint& to, uint8_t sysid, uint8_t compid) const;
+    /// Whether a and b are one route target: the same endpoint, or links of the same bond.
+    bool same_target(const Endpoint& a, const Endpoint& b) const;
+    /// Whether `to` may carry a frame from `from`: not the same endpoint or bond, and the
+    /// bond's tx policy lets this member send.
+    bool may_send(const Endpoint& from, const Endpoint& to) const;
     void deliver(const Frame& frame, Endpoint& to, TimePoint now);
 
     Duration route_timeout_;
+    std::vector<Bond> bonds_;
     std::vector<Endpoint*> endpoints_;            // index = endpoint id; nullptr = free slot
+    std::vector<uint32_t> bond_of_;               // index = endpoint id
     std::vector<std::vector<Route>> routes_;      // index = endpoint id
     std::vector<Endpoint*> dirty_;
     FrameFilter* filter_ = nullptr;

@@ -177,5 +177,62 @@ TEST_F(RouterTest, RemovedEndpointGetsNothingAndItsIdIsReused) {
     router_.add(camera());
 }
 
+/// radio and lte are the two links of bond "vehicle"; gcs is a plain endpoint.
+class BondRouterTest : public RouterTest {
+protected:
+    void SetUp() override {}
+    void make(BondConfig::Tx tx) {
+        router_ = Router(seconds(10), {BondConfig{"vehicle", tx, {}}});
+        for (auto [name, bond] : {std::pair{"radio", "vehicle"}, {"lte", "vehicle"}, {"gcs", ""}}) {
+            configs_.push_back(std::make_unique<EndpointConfig>());
+            configs_.back()->name = name;
+            configs_.back()->bond = bond;
+            endpoints_.push_back(std::make_unique<RecordingEndpoint>(*configs_.back(), name));
+            router_.add(*endpoints_.back());
+        }
+    }
+    RecordingEndpoint& radio() { return *endpoints_[0]; }
+    RecordingEndpoint& lte() { return *endpoints_[1]; }
+    RecordingEndpoint& ground() { return *endpoints_[2]; }
+};
+
+TEST_F(BondRouterTest, FrameFromOneLinkIsNeverReflectedIntoTheOther) {
+    make(BondConfig::Tx::Broadcast);
+    receive(radio(), frame(1, 1));
+    EXPECT_EQ(1u, ground().sent.size());
+    EXPECT_EQ(0u, lte().sent.size());
+    EXPECT_EQ(0u, radio().sent.size());
+}
+
+TEST_F(BondRouterTest, BroadcastBondSendsOnEveryLink) {
+    make(BondConfig::Tx::Broadcast);
+    receive(ground(), frame(255, 190));
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size());
+}
+
+TEST_F(BondRouterTest, WhatOneLinkLearnedIsReachableThroughTheBond) {
+    make(BondConfig::Tx::Broadcast);
+    receive(radio(), frame(1, 1));      // the vehicle is heard on the radio only
+    clear_sent();
+    receive(ground(), frame(255, 190, 1, 1));
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size()) << "the LTE link reaches the same vehicle";
+}
+
+TEST_F(BondRouterTest, ActiveBondSendsOnTheActiveLinkOnly) {
+    make(BondConfig::Tx::Active);
+    receive(ground(), frame(255, 190));  // nothing chosen yet: every link
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size());
+    ASSERT_TRUE(router_.set_active_link(0, lte().id()));
+    EXPECT_FALSE(router_.set_active_link(0, ground().id())) << "not a member";
+    clear_sent();
+    receive(ground(), frame(255, 190));
+    EXPECT_EQ(0u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size());
+    EXPECT_EQ(1u, router_.bonds()[0].switches);
+}
+
 }  // namespace
 }  // namespace mavbond
