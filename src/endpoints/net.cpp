@@ -38,6 +38,13 @@ Result<UniqueFd> make_socket(int type) {
     UniqueFd fd(socket(AF_INET, type | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
     if (!fd)
         return make_error(std::string("socket: ") + strerror(errno));
+    if (type == SOCK_DGRAM) {
+        // A link that bursts hundreds of datagrams (a replay, a radio flushing its buffer)
+        // must not overflow the default ~200 KiB. Forced past rmem_max when privileged.
+        int size = 2 << 20;
+        if (setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUFFORCE, &size, sizeof size) < 0)
+            setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUF, &size, sizeof size);
+    }
     return fd;
 }
 

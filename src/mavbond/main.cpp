@@ -14,6 +14,7 @@
 #include "core/log.h"
 #include "core/router.h"
 #include "endpoints/endpoint.h"
+#include "filters/filter_chain.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -147,11 +148,10 @@ int run_daemon(const Options& opts) {
     }
     if (!opts.plugin_dir.empty())
         config->plugin_dir = opts.plugin_dir;
-    if (opts.check_config) {
-        printf("%s: OK (%zu endpoints)\n", opts.config_path.c_str(), config->endpoints.size());
-        return 0;
-    }
-    log_set_level(config->log_level);
+    if (config->plugin_dir.empty())
+        config->plugin_dir = MAVBOND_PLUGIN_DIR;
+    if (!opts.check_config)
+        log_set_level(config->log_level);
 
     auto loop = EventLoop::create();
     if (!loop) {
@@ -159,6 +159,20 @@ int run_daemon(const Options& opts) {
         return kExitOsError;
     }
     EventLoop& ev = *loop.value();
+    // The chain comes before the endpoints (it hears of each one as it registers) and goes
+    // after them. --check-config builds it too: plugin options are part of the config.
+    Router router(config->route_timeout, config->bonds);
+    auto chain = FilterChain::create(*config, config->plugin_dir, ev, router);
+    if (!chain) {
+        fprintf(stderr, "%s\n", chain.error().message.c_str());
+        return kExitConfig;
+    }
+    router.set_filter(chain.value().get());
+    if (opts.check_config) {
+        printf("%s: OK (%zu endpoints, %zu bonds, %zu filters)\n", opts.config_path.c_str(),
+               config->endpoints.size(), config->bonds.size(), chain.value()->size());
+        return 0;
+    }
     signal(SIGPIPE, SIG_IGN);  // a vanished TCP peer is an error code, not a death
     for (int sig : {SIGINT, SIGTERM}) {
         auto r = ev.on_signal(sig, [&ev](int signo) {
@@ -171,7 +185,6 @@ int run_daemon(const Options& opts) {
         }
     }
 
-    Router router(config->route_timeout);
     auto endpoints = make_endpoints(*config, ev, router);
     if (!endpoints) {
         log_error("%s", endpoints.error().message.c_str());
