@@ -1,0 +1,141 @@
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "config/config.h"
+#include "core/event_loop.h"
+#include "core/router.h"
+#include "filters/filter_chain.h"
+#include "filters/plugin_loader.h"
+
+namespace mavbond {
+namespace {
+
+const std::string kDir = MAVBOND_ABI_PLUGIN_DIR;
+
+std::string load_error(const std::string& name, const std::string& dir = kDir) {
+    auto p = LoadedPlugin::load(dir, name);
+    EXPECT_FALSE(p.has_value()) << name << " loaded";
+    return p ? "" : p.error().message;
+}
+
+TEST(PluginLoader, LoadsAGoodPlugin) {
+    auto p = LoadedPlugin::load(kDir, "good_plugin");
+    ASSERT_TRUE(p.has_value()) << p.error().message;
+    EXPECT_STREQ("good_plugin", p.value()->descriptor().name);
+    EXPECT_EQ(kDir + "/good_plugin.so", p.value()->path());
+}
+
+TEST(PluginLoader, RefusesAMissingFileNamingIt) {
+    std::string e = load_error("no_such_plugin");
+    EXPECT_NE(std::string::npos, e.find(kDir + "/no_such_plugin.so")) << e;
+    EXPECT_NE(std::string::npos, e.find("No such file")) << e;
+}
+
+TEST(PluginLoader, RefusesAnotherAbiVersion) {
+    std::string e = load_error("abi_version");
+    EXPECT_NE(std::string::npos, e.find("abi_version.so")) << e;
+    EXPECT_NE(std::string::npos, e.find("ABI version " + std::to_string(MAVBOND_PLUGIN_ABI_VERSION + 41))) << e;
+}
+
+TEST(PluginLoader, RefusesATooSmallDescriptor) {
+    EXPECT_NE(std::string::npos, load_error("small_struct").find("descriptor of 16 bytes"));
+}
+
+TEST(PluginLoader, RefusesANameMismatch) {
+    EXPECT_NE(std::string::npos, load_error("wrong_name").find("calls itself 'somebody_else'"));
+}
+
+TEST(PluginLoader, RefusesAMissingEntrySymbol) {
+    EXPECT_NE(std::string::npos, load_error("no_entry").find("no entry symbol mavbond_plugin_entry"));
+}
+
+TEST(PluginLoader, RefusesMissingCreate) {
+    EXPECT_NE(std::string::npos, load_error("no_create").find("lacks create or destroy"));
+}
+
+TEST(PluginLoader, RefusesAFileOthersMayWrite) {
+    auto dir = std::filesystem::temp_directory_path() / ("mavbond-abi-" + std::to_string(getpid()));
+    std::filesystem::create_directories(dir);
+    std::filesystem::copy_file(kDir + "/good_plugin.so", dir / "good_plugin.so",
+                               std::filesystem::copy_options::overwrite_existing);
+    chmod((dir / "good_plugin.so").c_str(), 0666);
+    std::string e = load_error("good_plugin", dir.string());
+    EXPECT_NE(std::string::npos, e.find("others than its owner may write (mode 666)")) << e;
+    chmod((dir / "good_plugin.so").c_str(), 0644);
+    EXPECT_TRUE(LoadedPlugin::load(dir.string(), "good_plugin").has_value());
+    std::filesystem::remove_all(dir);
+}
+
+/// The chain builds from a real config: its errors carry the filter's file:line:column.
+class ChainTest : public ::testing::Test {
+protected:
+    Result<std::unique_ptr<FilterChain>> build(const std::string& filters) {
+        auto cfg = parse_config("endpoints:\n"
+                                "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9}\n"
+                                "filters:\n" + filters, "t.yaml");
+        EXPECT_TRUE(cfg.has_value()) << cfg.error().message;
+        config_ = std::make_unique<Config>(std::move(cfg.value()));
+        router_ = std::make_unique<Router>(seconds(10), config_->bonds);
+        return FilterChain::create(*config_, kDir, *loop_, *router_);
+    }
+    std::unique_ptr<EventLoop> loop_ = std::move(EventLoop::create().value());
+    std::unique_ptr<Config> config_;
+    std::unique_ptr<Router> router_;
+};
+
+TEST_F(ChainTest, BuildsAGoodPluginWithItsOptions) {
+    auto chain = build("  - {plugin: good_plugin, label: hello, period: 250ms}\n");
+    ASSERT_TRUE(chain.has_value()) << chain.error().message;
+    EXPECT_EQ(1u, chain.value()->size());
+}
+
+TEST_F(ChainTest, DisabledFiltersAreNotLoaded) {
+    auto chain = build("  - {plugin: no_such_plugin, enabled: false}\n");
+    ASSERT_TRUE(chain.has_value()) << chain.error().message;
+    EXPECT_EQ(0u, chain.value()->size());
+}
+
+TEST_F(ChainTest, UnknownOptionNamesItsPlace) {
+    auto chain = build("  - plugin: good_plugin\n    lable: x\n");
+    ASSERT_FALSE(chain.has_value());
+    EXPECT_EQ("t.yaml:5:5: filter 'good_plugin': unknown option 'lable' (it takes: label, period)",
+              chain.error().message);
+}
+
+TEST_F(ChainTest, WrongOptionTypeNamesItsPlace) {
+    auto chain = build("  - plugin: good_plugin\n    period: 5\n");
+    ASSERT_FALSE(chain.has_value());
+    EXPECT_EQ("t.yaml:5:13: filter 'good_plugin': option 'period' must be a duration with a unit "
+              "(250ms, 2s), not '5'",
+              chain.error().message);
+}
+
+TEST_F(ChainTest, FailedCreateNamesTheEntryTheFileAndTheReason) {
+    auto chain = build("  - {plugin: failing_create}\n");
+    ASSERT_FALSE(chain.has_value());
+    const std::string& e = chain.error().message;
+    EXPECT_EQ(0u, e.find("t.yaml:4:5: filter 'failing_create': ")) << e;
+    EXPECT_NE(std::string::npos, e.find("failing_create.so: create failed")) << e;
+    EXPECT_NE(std::string::npos, e.find("this plugin always refuses")) << e;
+}
+
+TEST_F(ChainTest, PluginCheckOfAnOptionValueNamesItsPlace) {
+    auto chain = build("  - plugin: good_plugin\n    label: bad\n");
+    ASSERT_FALSE(chain.has_value());
+    EXPECT_NE(std::string::npos,
+              chain.error().message.find("t.yaml:5:12: filter 'good_plugin': option 'label': must not be 'bad'"))
+        << chain.error().message;
+}
+
+TEST_F(ChainTest, LoadErrorsCarryTheConfigPlace) {
+    auto chain = build("  - {plugin: abi_version}\n");
+    ASSERT_FALSE(chain.has_value());
+    EXPECT_EQ(0u, chain.error().message.find("t.yaml:4:5: filter 'abi_version': " + kDir)) << chain.error().message;
+}
+
+}  // namespace
+}  // namespace mavbond

@@ -1,0 +1,85 @@
+// One plugin source, built once per defect (see meson.build), so the loader's every refusal
+// is proven against a real shared object. Without a DEFECT_* macro it is a good plugin that
+// passes every frame and counts them.
+#include <cstdio>
+#include <cstring>
+
+#include "mavbond/plugin.h"
+
+#ifndef PLUGIN_NAME
+#define PLUGIN_NAME "good_plugin"
+#endif
+
+namespace {
+
+struct Counter {
+    unsigned long frames = 0;
+};
+
+int create(const mavbond_host_api* api, mavbond_host*, const mavbond_config* cfg, void** out,
+           char* err, size_t err_len) {
+#ifdef DEFECT_FAILING_CREATE
+    (void)out;
+    api->cfg_error(cfg, "label", "this plugin always refuses", err, err_len);
+    return -1;
+#else
+    const char* label = nullptr;
+    if (api->cfg_string(cfg, "label", &label) == 0 && std::strcmp(label, "bad") == 0) {
+        api->cfg_error(cfg, "label", "must not be 'bad'", err, err_len);
+        return -1;
+    }
+    *out = new Counter;
+    return 0;
+#endif
+}
+
+void destroy(void* self) { delete static_cast<Counter*>(self); }
+
+mavbond_verdict on_ingress(void* self, const mavbond_frame*, mavbond_frame_notes*, const mavbond_link*) {
+    static_cast<Counter*>(self)->frames++;
+    return MAVBOND_PASS;
+}
+
+const mavbond_option kOptions[] = {
+    {"label", MAVBOND_OPT_STRING, "none", "a free text, refused when 'bad'"},
+    {"period", MAVBOND_OPT_DURATION, "1s", "a duration"},
+    {nullptr, MAVBOND_OPT_BOOL, nullptr, nullptr},
+};
+
+mavbond_plugin_descriptor make_descriptor() {
+    mavbond_plugin_descriptor d{};
+    d.abi_version = MAVBOND_PLUGIN_ABI_VERSION;
+    d.struct_size = sizeof d;
+    d.name = PLUGIN_NAME;
+    d.version = "1";
+    d.description = "loader test plugin";
+    d.options = kOptions;
+    d.create = create;
+    d.destroy = destroy;
+    d.on_ingress = on_ingress;
+#ifdef DEFECT_ABI_VERSION
+    d.abi_version = MAVBOND_PLUGIN_ABI_VERSION + 41;
+#endif
+#ifdef DEFECT_SMALL_STRUCT
+    d.struct_size = 16;
+#endif
+#ifdef DEFECT_WRONG_NAME
+    d.name = "somebody_else";
+#endif
+#ifdef DEFECT_NO_CREATE
+    d.create = nullptr;
+#endif
+    return d;
+}
+
+const mavbond_plugin_descriptor kDescriptor = make_descriptor();
+
+}  // namespace
+
+#ifndef DEFECT_NO_ENTRY
+extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {
+    return &kDescriptor;
+}
+#else
+extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* some_other_symbol(void) { return &kDescriptor; }
+#endif
