@@ -336,7 +336,7 @@ def test_outage_drops_its_span_and_nothing_else(emu_factory):
             got.add(HDR.unpack_from(b.recv(100))[0])
     except BlockingIOError:
         pass
-    margin = 0.015
+    margin = 0.03      # the sender and the emulator thread may be scheduled late
     inside = [i for i, t in sent.items()
               if any(s + margin <= t < s + l - margin for s, l in spans)]
     outside = [i for i, t in sent.items()
