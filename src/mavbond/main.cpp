@@ -13,6 +13,7 @@
 #include "core/event_loop.h"
 #include "core/log.h"
 #include "core/router.h"
+#include "core/status_socket.h"
 #include "endpoints/endpoint.h"
 #include "filters/filter_chain.h"
 #include "mavbond_build_config.h"
@@ -92,6 +93,42 @@ std::string counters_line(const Endpoint& e) {
              (unsigned long long)s.tx_filtered, (unsigned long long)s.tx_dropped,
              (unsigned long long)s.tx_errors);
     return line;
+}
+
+/// The status socket's document: every endpoint's counters, the bonds, and each filter's own
+/// status (the stats plugin's per-link and per-bond figures among them).
+std::string status_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
+                            const FilterChain& chain, TimePoint started, TimePoint now) {
+    std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
+                      std::to_string(std::chrono::duration_cast<seconds>(now - started).count()) +
+                      ",\"endpoints\":[";
+    for (size_t i = 0; i < endpoints.size(); i++) {
+        const Endpoint& e = *endpoints[i];
+        EndpointStats s = e.total_stats();
+        char buf[640];
+        snprintf(buf, sizeof buf,
+                 "%s{\"name\":\"%s\",\"kind\":\"%s\",\"bond\":\"%s\",\"rx_frames\":%llu,"
+                 "\"rx_bytes\":%llu,\"crc_errors\":%llu,\"garbage_bytes\":%llu,\"unknown_ids\":%llu,"
+                 "\"rx_filtered\":%llu,\"tx_frames\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,"
+                 "\"tx_errors\":%llu}",
+                 i ? "," : "", e.name().c_str(), e.kind(), e.config().bond.c_str(),
+                 (unsigned long long)s.rx.frames, (unsigned long long)s.rx.bytes,
+                 (unsigned long long)s.rx.crc_errors, (unsigned long long)s.rx.garbage_bytes,
+                 (unsigned long long)s.rx.unknown_ids, (unsigned long long)s.rx_filtered,
+                 (unsigned long long)s.tx_frames, (unsigned long long)s.tx_bytes,
+                 (unsigned long long)s.tx_dropped, (unsigned long long)s.tx_errors);
+        out += buf;
+    }
+    out += "],\"bonds\":[";
+    for (size_t i = 0; i < router.bonds().size(); i++) {
+        const Router::Bond& b = router.bonds()[i];
+        const Endpoint* active = b.active_link < router.endpoints().size()
+                                     ? router.endpoints()[b.active_link] : nullptr;
+        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
+               (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
+               (active ? active->name() : "") + "\",\"switches\":" + std::to_string(b.switches) + "}";
+    }
+    return out + "],\"filters\":" + chain.status_json() + "}";
 }
 
 /// Per-frame problems are never logged one by one: every report_interval, one line per
@@ -197,6 +234,18 @@ int run_daemon(const Options& opts) {
     if (auto r = ev.on_signal(SIGUSR1, [&](int) { dump_counters(); }); !r) {
         log_error("%s", r.error().message.c_str());
         return kExitOsError;
+    }
+    TimePoint started = ev.now();
+    std::unique_ptr<StatusSocket> status;
+    if (!config->status_socket.empty()) {
+        auto st = StatusSocket::open(config->status_socket, ev, [&] {
+            return status_document(*endpoints, router, *chain.value(), started, ev.now());
+        });
+        if (!st) {
+            log_error("%s", st.error().message.c_str());
+            return kExitOsError;
+        }
+        status = std::move(st.value());
     }
     ProblemReport report(*endpoints);
     auto report_timer = ev.schedule(config->report_interval, [&] {
