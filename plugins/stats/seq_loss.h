@@ -1,0 +1,122 @@
+// Loss from MAVLink sequence numbers, per source (sysid, compid). Shared by stats and linkswitch
+// (header only: each plugin .so carries its own copy, nothing crosses the plugin boundary).
+//
+// MAVLink has one 8-bit sequence counter per source, so loss is only measurable per source and
+// only modulo 256: a forward step of g (1 <= g < 128) means g - 1 frames were lost; anything
+// else is a late frame (reordering), a repeat, or a source that restarted. A late frame that
+// fills a gap already counted as lost gives that loss back, so reordering never inflates loss.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+namespace mavbond_plugins {
+
+/// What one frame changes: `received` counts distinct sequence numbers (0 for a repeat),
+/// `lost` may be -1 when a late frame fills a counted gap. Expected = received + lost.
+struct SeqStep {
+    int32_t received = 0;
+    int32_t lost = 0;
+};
+
+/// The sequence state of one source on one stream.
+class SeqTracker {
+public:
+    SeqStep step(uint8_t seq) {
+        if (!started_) {
+            restart(seq);
+            return {1, 0};
+        }
+        auto ahead = static_cast<uint8_t>(seq - last_);
+        if (ahead != 0 && ahead < kMaxGap) {
+            seen_ = ahead >= kHistory ? 0 : seen_ << ahead;
+            seen_ |= 1;
+            last_ = seq;
+            odd_run_ = 0;
+            return {1, ahead - 1};
+        }
+        auto behind = static_cast<uint8_t>(last_ - seq);
+        if (behind < kHistory && !((seen_ >> behind) & 1)) {
+            seen_ |= uint64_t{1} << behind;
+            odd_run_ = 0;
+            return {1, -1};
+        }
+        // A repeat, or far behind: one such frame is noise, a run of them means the source
+        // restarted its counter or came back after a long outage; follow it from here without
+        // counting the jump as loss (it is meaningless modulo 256).
+        if (++odd_run_ >= kResyncRun) {
+            restart(seq);
+            return {1, 0};
+        }
+        return {0, 0};
+    }
+
+private:
+    static constexpr uint8_t kMaxGap = 128;   // forward steps at least this far are not gaps
+    static constexpr uint8_t kHistory = 64;   // how far back a late frame can fill a gap
+    static constexpr uint8_t kResyncRun = 3;  // odd frames in a row that mean "start over"
+
+    void restart(uint8_t seq) {
+        started_ = true;
+        last_ = seq;
+        seen_ = ~uint64_t{0};  // before the first frame: nothing to fill
+        odd_run_ = 0;
+    }
+
+    uint64_t seen_ = 0;  // bit i: seq (last_ - i) arrived
+    uint8_t last_ = 0;
+    uint8_t odd_run_ = 0;
+    bool started_ = false;
+};
+
+/// Sequence trackers for the sources seen on one stream: a fixed open-addressed table, so a
+/// frame never allocates. A stream rarely has more than a handful of sources (autopilot,
+/// gimbal, companion, GCS); sources beyond the capacity are counted as received, never lost.
+class SourceTable {
+public:
+    SeqStep step(uint8_t sysid, uint8_t compid, uint8_t seq) {
+        SeqTracker* t = find(sysid, compid);
+        return t ? t->step(seq) : SeqStep{1, 0};
+    }
+    uint32_t size() const { return used_; }
+
+private:
+    static constexpr uint32_t kCapacity = 64;
+    struct Slot {
+        uint16_t key = 0;
+        bool used = false;
+        SeqTracker tracker;
+    };
+
+    SeqTracker* find(uint8_t sysid, uint8_t compid) {
+        auto key = static_cast<uint16_t>(sysid << 8 | compid);
+        uint32_t i = (key * 40503u >> 4) % kCapacity;  // spread neighbouring compids
+        for (uint32_t n = 0; n < kCapacity; n++, i = (i + 1) % kCapacity) {
+            Slot& s = slots_[i];
+            if (s.used && s.key == key)
+                return &s.tracker;
+            if (!s.used) {
+                if (used_ * 4 >= kCapacity * 3)  // keep probes short
+                    return nullptr;
+                s.used = true;
+                s.key = key;
+                used_++;
+                return &s.tracker;
+            }
+        }
+        return nullptr;
+    }
+
+    std::array<Slot, kCapacity> slots_{};
+    uint32_t used_ = 0;
+};
+
+/// Loss as a fraction of expected frames; negative totals (late frames filling gaps counted
+/// in an earlier window) clamp to 0.
+inline double loss_fraction(int64_t received, int64_t lost) {
+    if (lost <= 0 || received + lost <= 0)
+        return 0.0;
+    return static_cast<double>(lost) / static_cast<double>(received + lost);
+}
+
+}  // namespace mavbond_plugins
