@@ -48,4 +48,18 @@ Result<UniqueFd> make_socket(int type) {
     return fd;
 }
 
+Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port) {
+    auto addr = resolve_ipv4(host, port);
+    if (!addr)
+        return addr.error();
+    auto fd = make_socket(type);
+    if (!fd)
+        return fd.error();
+    int one = 1;
+    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
+        return make_error("cannot bind " + to_string(*addr) + ": " + errno_text(errno));
+    return BoundSocket{std::move(fd.value()), *addr};
+}
+
 }  // namespace mavbond

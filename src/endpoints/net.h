@@ -18,6 +18,12 @@ inline bool same_address(const sockaddr_in& a, const sockaddr_in& b) {
 }
 /// A non-blocking, close-on-exec socket.
 Result<UniqueFd> make_socket(int type);
+/// A socket of `type` bound to host:port (SO_REUSEADDR), for the servers.
+struct BoundSocket {
+    UniqueFd fd;
+    sockaddr_in addr;
+};
+Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port);
 std::string errno_text(int err);
 
 }  // namespace mavbond

@@ -39,25 +39,18 @@ void TcpConnection::on_disconnect(const std::string& reason) {
 
 Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config, EventLoop& loop,
                                                    Router& router, UnknownIdPolicy policy) {
-    auto addr = resolve_ipv4(config.host, config.port);
-    if (!addr)
-        return addr.error();
-    auto fd = make_socket(SOCK_STREAM);
-    if (!fd)
-        return fd.error();
-    int one = 1;
-    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    if (bind(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
-        return make_error("cannot bind " + to_string(*addr) + ": " + errno_text(errno));
-    if (listen(fd->get(), 16) < 0)
-        return make_error("cannot listen on " + to_string(*addr) + ": " + errno_text(errno));
+    auto bound = bind_socket(SOCK_STREAM, config.host, config.port);
+    if (!bound)
+        return bound.error();
+    if (listen(bound->fd.get(), 16) < 0)
+        return make_error("cannot listen on " + to_string(bound->addr) + ": " + errno_text(errno));
     std::unique_ptr<TcpServer> server(
-        new TcpServer(config, loop, router, policy, std::move(fd.value())));
+        new TcpServer(config, loop, router, policy, std::move(bound->fd)));
     auto w = loop.watch(server->fd_.get(), EPOLLIN, [s = server.get()](uint32_t) { s->on_accept(); });
     if (!w)
         return w.error();
     server->watch_ = std::move(w.value());
-    log_info("[tcp:%s] listening on %s", config.name.c_str(), to_string(*addr).c_str());
+    log_info("[tcp:%s] listening on %s", config.name.c_str(), to_string(bound->addr).c_str());
     return server;
 }
 

@@ -76,18 +76,11 @@ void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 
 Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
                                                    Router& router, UnknownIdPolicy policy) {
-    auto addr = resolve_ipv4(config.host, config.port);
-    if (!addr)
-        return addr.error();
-    auto fd = make_socket(SOCK_DGRAM);
-    if (!fd)
-        return fd.error();
-    int one = 1;
-    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    if (bind(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
-        return make_error("cannot bind " + to_string(*addr) + ": " + errno_text(errno));
+    auto bound = bind_socket(SOCK_DGRAM, config.host, config.port);
+    if (!bound)
+        return bound.error();
     std::unique_ptr<UdpServer> server(
-        new UdpServer(config, loop, router, policy, std::move(fd.value())));
+        new UdpServer(config, loop, router, policy, std::move(bound->fd)));
     auto w = loop.watch(server->fd_.get(), EPOLLIN,
                         [s = server.get()](uint32_t events) { s->on_events(events); });
     if (!w)
@@ -98,7 +91,7 @@ Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config,
         s->forget_silent_peers();
         return period;
     });
-    log_info("[udp:%s] listening on %s", config.name.c_str(), to_string(*addr).c_str());
+    log_info("[udp:%s] listening on %s", config.name.c_str(), to_string(bound->addr).c_str());
     return server;
 }
 
