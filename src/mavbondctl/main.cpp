@@ -85,7 +85,9 @@ void print_table(const pt::ptree& doc) {
     }
     for (const auto& [_, f] : doc.get_child("filters", {})) {
         printf("\nfilter %s: %s frames dropped\n", f.get("name", "").c_str(), f.get("dropped", "0").c_str());
-        // The stats plugin's figures, when it is loaded: per link and per bond.
+        if (f.get("plugin", "") != "stats")
+            continue;
+        // The stats plugin's figures: per link and per bond.
         if (auto links = f.get_child_optional("status.links")) {
             printf("  %-26s %-9s %10s %8s %8s %8s\n", "LINK", "BOND", "FRAMES", "LOST", "LOSS", "CRC ERR");
             for (const auto& [__, l] : *links)
