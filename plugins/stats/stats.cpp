@@ -1,0 +1,652 @@
+// stats: an observer (always PASS) that turns what the links deliver into numbers.
+//
+// Per link: frames and bytes seen on ingress, the host's CRC error and garbage counters, and
+// loss from MAVLink sequence gaps per source. Per bond: what was delivered (member frames no
+// earlier filter dropped), duplicates and stale frames dropped (from dedup's notes), the loss
+// of the delivered stream (the figure the paper improves), the latency skew between links
+// (from dedup's skew_ns), and the active link from the host. Every `interval` a log line and
+// optionally a CSV row per link and bond. Put stats last in the chain: it reads the notes the
+// filters before it wrote.
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "json_out.h"
+#include "mavbond/plugin.h"
+#include "seq_loss.h"
+
+namespace {
+
+using mavbond_plugins::JsonOut;
+using mavbond_plugins::loss_fraction;
+using mavbond_plugins::SeqStep;
+using mavbond_plugins::SourceTable;
+
+constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+constexpr double kNsPerMs = 1e6;
+// Skew histogram bin upper edges in ms: roughly logarithmic, from a wired link's jitter to an
+// LTE link buffering for seconds. The last bin takes everything above.
+constexpr std::array<double, 12> kSkewEdgesMs = {1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000,
+                                                 5000};
+constexpr size_t kSkewBins = kSkewEdgesMs.size() + 1;
+
+const mavbond_option kOptions[] = {
+    {"interval", MAVBOND_OPT_DURATION, "1s",
+     "how often the figures are summarised (log line, CSV rows, interval figures)"},
+    {"csv", MAVBOND_OPT_STRING, nullptr,
+     "append one row per interval per link and bond to this CSV file (default: none)"},
+    {"log", MAVBOND_OPT_BOOL, "true", "log one summary line per interval"},
+    {nullptr, MAVBOND_OPT_BOOL, nullptr, nullptr},
+};
+
+/// Latency skew of duplicates: a copy's arrival minus the first copy's, as count, sum, max and
+/// a fixed histogram (for p50), so a frame costs O(1) and no allocation.
+struct Skew {
+    uint64_t count = 0;
+    double sum_ms = 0;
+    double max_ms = 0;
+    std::array<uint64_t, kSkewBins> bins{};
+
+    void add(double ms) {
+        count++;
+        sum_ms += ms;
+        max_ms = std::max(max_ms, ms);
+        size_t b = 0;
+        while (b < kSkewEdgesMs.size() && ms > kSkewEdgesMs[b])
+            b++;
+        bins[b]++;
+    }
+    double mean() const { return count ? sum_ms / static_cast<double>(count) : 0.0; }
+    /// The upper edge of the bin holding the median (at most the maximum seen).
+    double p50() const {
+        uint64_t seen = 0;
+        for (size_t b = 0; b < kSkewBins; b++) {
+            seen += bins[b];
+            if (count && seen * 2 >= count)
+                return b < kSkewEdgesMs.size() ? std::min(kSkewEdgesMs[b], max_ms) : max_ms;
+        }
+        return 0.0;
+    }
+};
+
+/// Counters that only grow; interval figures are differences of two of these.
+struct LinkTotals {
+    uint64_t frames = 0;
+    uint64_t bytes = 0;
+    int64_t received = 0;  // distinct sequence numbers
+    int64_t lost = 0;
+    uint64_t crc_errors = 0;
+    uint64_t garbage_bytes = 0;
+};
+
+struct BondTotals {
+    uint64_t frames = 0;  // every ingress frame of a member, before any filter's verdict
+    uint64_t bytes = 0;
+    uint64_t delivered = 0;
+    uint64_t duplicates = 0;
+    uint64_t stale = 0;
+    int64_t received = 0;  // of the delivered stream
+    int64_t lost = 0;
+    uint64_t crc_errors = 0;
+    uint64_t skew_count = 0;
+    double skew_sum_ms = 0;
+    double skew_max_ms = 0;
+};
+
+struct LinkStats {
+    bool present = false;
+    bool in_scope = false;
+    std::string name;
+    uint32_t bond = kNone;  // index into Stats::bonds_
+    uint32_t member = 0;    // position among the bond's members
+    LinkTotals total, prev, interval;
+    SourceTable sources;
+};
+
+struct BondStats {
+    uint32_t id = kNone;
+    std::string name;
+    std::vector<uint32_t> members;  // link ids
+    uint32_t width = 0;             // skew matrix side: positions 0..width-1
+    std::vector<Skew> skew;         // [first copy's member position * width + late copy's]
+    BondTotals total, prev, interval;
+    SourceTable delivered_sources;
+    mavbond_bond_state state{};
+};
+
+class Stats {
+public:
+    Stats(const mavbond_host_api* api, mavbond_host* h) : api_(api), h_(h) {}
+    ~Stats() {
+        if (timer_)
+            api_->timer_cancel(h_, timer_id_);
+        if (csv_)
+            fclose(csv_);
+    }
+
+    int init(const mavbond_config* cfg, char* err, size_t err_len);
+    void on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
+                    const mavbond_link* from);
+    void on_link(const mavbond_link* link, mavbond_link_event event);
+    size_t status_json(char* buf, size_t len);
+    int tick();
+
+private:
+    void adopt(const mavbond_link* l);
+    bool link_in_scope(const mavbond_link* l) const;
+    void refresh_counters(LinkStats& l);
+    void write_csv(double t);
+    void write_log();
+
+    const mavbond_host_api* api_;
+    mavbond_host* h_;
+    uint64_t interval_ns_ = 1'000'000'000;
+    bool log_ = true;
+    std::string csv_path_;
+    FILE* csv_ = nullptr;
+    std::vector<std::string> scope_bonds_, scope_endpoints_;
+    uint64_t start_ns_ = 0;
+    uint64_t intervals_ = 0;
+    std::vector<LinkStats> links_;      // by link id
+    std::vector<BondStats> bonds_;
+    std::vector<uint32_t> bond_index_;  // bond id -> index into bonds_
+    bool timer_ = false;
+    uint64_t timer_id_ = 0;
+};
+
+int Stats::init(const mavbond_config* cfg, char* err, size_t err_len) {
+    api_->cfg_duration_ns(cfg, "interval", &interval_ns_);
+    int log = 1;
+    if (api_->cfg_bool(cfg, "log", &log) == 0)
+        log_ = log != 0;
+    if (interval_ns_ == 0) {
+        api_->cfg_error(cfg, "interval", "must be greater than 0", err, err_len);
+        return -1;
+    }
+    const char* path = nullptr;
+    if (api_->cfg_string(cfg, "csv", &path) == 0 && path && *path) {
+        csv_path_ = path;
+        // Appending keeps the series of earlier runs; the header goes only into a new file.
+        csv_ = fopen(path, "a");
+        if (!csv_) {
+            std::string msg = std::string("cannot open '") + path + "': " + strerror(errno);
+            api_->cfg_error(cfg, "csv", msg.c_str(), err, err_len);
+            return -1;
+        }
+        fseek(csv_, 0, SEEK_END);
+        if (ftell(csv_) == 0) {
+            fputs("time_s,kind,name,frames,bytes,lost,loss_pct,delivered,duplicates,stale,"
+                  "crc_errors,skew_ms_mean,active\n",
+                  csv_);
+            fflush(csv_);
+        }
+    }
+
+    const char* const* bonds = nullptr;
+    const char* const* endpoints = nullptr;
+    size_t bond_count = 0, endpoint_count = 0;
+    api_->scope(cfg, &bonds, &bond_count, &endpoints, &endpoint_count);
+    scope_bonds_.assign(bonds, bonds + bond_count);
+    scope_endpoints_.assign(endpoints, endpoints + endpoint_count);
+
+    start_ns_ = api_->now_ns(h_);
+    size_t n = api_->links(h_, nullptr, 0);
+    std::vector<const mavbond_link*> all(n);
+    n = std::min(n, api_->links(h_, all.data(), all.size()));
+    for (size_t i = 0; i < n; i++)
+        adopt(all[i]);
+
+    int rc = api_->timer_add(
+        h_, interval_ns_, [](void* self) { return static_cast<Stats*>(self)->tick(); }, this,
+        &timer_id_);
+    if (rc < 0) {
+        snprintf(err, err_len, "stats: cannot add a timer: %s", strerror(-rc));
+        return -1;
+    }
+    timer_ = true;
+    return 0;
+}
+
+/// No scope: everything. Otherwise a link is in scope through its bond or its own name.
+bool Stats::link_in_scope(const mavbond_link* l) const {
+    if (scope_bonds_.empty() && scope_endpoints_.empty())
+        return true;
+    if (l->bond_name && std::find(scope_bonds_.begin(), scope_bonds_.end(), l->bond_name) !=
+                            scope_bonds_.end())
+        return true;
+    return l->name &&
+           std::find(scope_endpoints_.begin(), scope_endpoints_.end(), l->name) !=
+               scope_endpoints_.end();
+}
+
+void Stats::adopt(const mavbond_link* l) {
+    if (l->id >= links_.size())
+        links_.resize(l->id + 1);
+    LinkStats& link = links_[l->id];
+    if (!link.present) {
+        link = LinkStats{};
+        link.present = true;
+        link.name = l->name ? l->name : "?";
+    }
+    link.in_scope = link_in_scope(l);
+    link.member = l->priority;
+    if (!link.in_scope || l->bond_id == MAVBOND_NO_BOND || !l->bond_name)
+        return;
+    if (l->bond_id >= bond_index_.size())
+        bond_index_.resize(l->bond_id + 1, kNone);
+    if (bond_index_[l->bond_id] == kNone) {
+        bond_index_[l->bond_id] = static_cast<uint32_t>(bonds_.size());
+        BondStats b;
+        b.id = l->bond_id;
+        b.name = l->bond_name;
+        bonds_.push_back(std::move(b));
+    }
+    link.bond = bond_index_[l->bond_id];
+    BondStats& b = bonds_[link.bond];
+    if (std::find(b.members.begin(), b.members.end(), l->id) == b.members.end())
+        b.members.push_back(l->id);
+    if (l->priority >= b.width) {
+        // Grow the skew matrix, keeping what was measured (only when links are added).
+        uint32_t width = l->priority + 1;
+        std::vector<Skew> grown(static_cast<size_t>(width) * width);
+        for (uint32_t i = 0; i < b.width; i++) {
+            for (uint32_t j = 0; j < b.width; j++)
+                grown[i * width + j] = b.skew[i * b.width + j];
+        }
+        b.skew = std::move(grown);
+        b.width = width;
+    }
+}
+
+void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
+                       const mavbond_link* from) {
+    if (from->id >= links_.size() || !links_[from->id].present)
+        adopt(from);  // a link we were not told about: allocates once, on its first frame
+    LinkStats& l = links_[from->id];
+    uint32_t flags = notes ? notes->flags : 0;
+    l.total.frames++;
+    l.total.bytes += f->raw_len;
+    SeqStep s = l.sources.step(f->sysid, f->compid, f->seq);
+    l.total.received += s.received;
+    l.total.lost += s.lost;
+    if (l.bond == kNone)
+        return;
+
+    BondStats& b = bonds_[l.bond];
+    b.total.frames++;
+    b.total.bytes += f->raw_len;
+    if (!(flags & MAVBOND_NOTE_DROPPED)) {
+        b.total.delivered++;
+        SeqStep d = b.delivered_sources.step(f->sysid, f->compid, f->seq);
+        b.total.received += d.received;
+        b.total.lost += d.lost;
+    } else {
+        if (flags & MAVBOND_NOTE_DUPLICATE)
+            b.total.duplicates++;
+        else if (flags & MAVBOND_NOTE_STALE)
+            b.total.stale++;
+    }
+    if ((flags & MAVBOND_NOTE_DUPLICATE) && notes) {
+        double ms = static_cast<double>(notes->skew_ns < 0 ? -notes->skew_ns : notes->skew_ns) /
+                    kNsPerMs;
+        b.total.skew_count++;
+        b.total.skew_sum_ms += ms;
+        b.total.skew_max_ms = std::max(b.total.skew_max_ms, ms);
+        uint32_t first = notes->first_link_id;
+        if (first < links_.size() && links_[first].bond == l.bond) {
+            uint32_t i = links_[first].member, j = l.member;
+            if (i < b.width && j < b.width)
+                b.skew[i * b.width + j].add(ms);
+        }
+    }
+}
+
+void Stats::on_link(const mavbond_link* link, mavbond_link_event event) {
+    if (event == MAVBOND_LINK_ADDED) {
+        adopt(link);
+        return;
+    }
+    // A removed link keeps its figures (a learned UDP peer that went quiet is still history);
+    // it is only left out of the interval rows from now on.
+    if (link->id < links_.size())
+        links_[link->id].present = false;
+}
+
+void Stats::refresh_counters(LinkStats& l) {
+    mavbond_link_counters c{};
+    c.struct_size = sizeof c;
+    uint32_t id = static_cast<uint32_t>(&l - links_.data());
+    if (api_->link_counters(h_, id, &c) == 0) {
+        l.total.crc_errors = c.crc_errors;
+        l.total.garbage_bytes = c.garbage_bytes;
+    }
+}
+
+int Stats::tick() {
+    uint64_t now = api_->now_ns(h_);
+    intervals_++;
+    for (LinkStats& l : links_) {
+        if (!l.present || !l.in_scope)
+            continue;
+        refresh_counters(l);
+        l.interval = LinkTotals{l.total.frames - l.prev.frames,
+                                l.total.bytes - l.prev.bytes,
+                                l.total.received - l.prev.received,
+                                l.total.lost - l.prev.lost,
+                                l.total.crc_errors - l.prev.crc_errors,
+                                l.total.garbage_bytes - l.prev.garbage_bytes};
+        l.prev = l.total;
+    }
+    for (BondStats& b : bonds_) {
+        b.total.crc_errors = 0;
+        for (uint32_t id : b.members)
+            b.total.crc_errors += links_[id].total.crc_errors;
+        b.state = mavbond_bond_state{};
+        b.state.struct_size = sizeof b.state;
+        if (api_->bond_state(h_, b.id, &b.state) != 0)
+            b.state.active_link_id = kNone;
+        const BondTotals& t = b.total;
+        b.interval = BondTotals{t.frames - b.prev.frames,
+                                t.bytes - b.prev.bytes,
+                                t.delivered - b.prev.delivered,
+                                t.duplicates - b.prev.duplicates,
+                                t.stale - b.prev.stale,
+                                t.received - b.prev.received,
+                                t.lost - b.prev.lost,
+                                t.crc_errors - b.prev.crc_errors,
+                                t.skew_count - b.prev.skew_count,
+                                t.skew_sum_ms - b.prev.skew_sum_ms,
+                                0};
+        b.prev = t;
+    }
+    try {
+        if (csv_)
+            write_csv(static_cast<double>(now - start_ns_) / 1e9);
+        if (log_)
+            write_log();
+    } catch (...) {
+        // Out of memory building a log line: skip this interval's line, keep counting.
+    }
+    return 1;
+}
+
+/// A CSV field: quoted when it holds a separator or quote (learned peers are "name@ip:port").
+void csv_field(FILE* out, const char* s) {
+    if (!strpbrk(s, ",\"\n")) {
+        fputs(s, out);
+        return;
+    }
+    fputc('"', out);
+    for (; *s; s++) {
+        if (*s == '"')
+            fputc('"', out);
+        fputc(*s, out);
+    }
+    fputc('"', out);
+}
+
+/// One row per link and per bond with this interval's figures. Columns that do not apply to
+/// the kind stay empty; `active` is 1/0 for a bond member, the active link's name for a bond.
+void Stats::write_csv(double t) {
+    for (const LinkStats& l : links_) {
+        if (!l.present || !l.in_scope)
+            continue;
+        const LinkTotals& i = l.interval;
+        fprintf(csv_, "%.3f,link,", t);
+        csv_field(csv_, l.name.c_str());
+        fprintf(csv_, ",%llu,%llu,%lld,%.3f,,,,%llu,,", static_cast<unsigned long long>(i.frames),
+                static_cast<unsigned long long>(i.bytes), static_cast<long long>(i.lost),
+                loss_fraction(i.received, i.lost) * 100,
+                static_cast<unsigned long long>(i.crc_errors));
+        if (l.bond != kNone) {
+            uint32_t id = static_cast<uint32_t>(&l - links_.data());
+            fputs(bonds_[l.bond].state.active_link_id == id ? "1" : "0", csv_);
+        }
+        fputc('\n', csv_);
+    }
+    for (const BondStats& b : bonds_) {
+        const BondTotals& i = b.interval;
+        fprintf(csv_, "%.3f,bond,", t);
+        csv_field(csv_, b.name.c_str());
+        fprintf(csv_, ",%llu,%llu,%lld,%.3f,%llu,%llu,%llu,%llu,", static_cast<unsigned long long>(i.frames),
+                static_cast<unsigned long long>(i.bytes), static_cast<long long>(i.lost),
+                loss_fraction(i.received, i.lost) * 100,
+                static_cast<unsigned long long>(i.delivered),
+                static_cast<unsigned long long>(i.duplicates),
+                static_cast<unsigned long long>(i.stale),
+                static_cast<unsigned long long>(i.crc_errors));
+        if (i.skew_count)
+            fprintf(csv_, "%.3f", i.skew_sum_ms / static_cast<double>(i.skew_count));
+        fputc(',', csv_);
+        uint32_t active = b.state.active_link_id;
+        if (active < links_.size())
+            csv_field(csv_, links_[active].name.c_str());
+        fputc('\n', csv_);
+    }
+    fflush(csv_);
+}
+
+/// One line per interval: each bond (delivered figures, then its links), then lone links.
+void Stats::write_log() {
+    std::string line;
+    char part[256];
+    auto add_link = [&](const LinkStats& l) {
+        const LinkTotals& i = l.interval;
+        snprintf(part, sizeof part, "%s %llu loss %.1f%%%s", l.name.c_str(),
+                 static_cast<unsigned long long>(i.frames),
+                 loss_fraction(i.received, i.lost) * 100, i.crc_errors ? " crc " : "");
+        line += part;
+        if (i.crc_errors)
+            line += std::to_string(i.crc_errors);
+    };
+    for (const BondStats& b : bonds_) {
+        const BondTotals& i = b.interval;
+        snprintf(part, sizeof part, "%s%s: delivered %llu loss %.1f%% dup %llu stale %llu",
+                 line.empty() ? "" : "; ", b.name.c_str(),
+                 static_cast<unsigned long long>(i.delivered),
+                 loss_fraction(i.received, i.lost) * 100,
+                 static_cast<unsigned long long>(i.duplicates),
+                 static_cast<unsigned long long>(i.stale));
+        line += part;
+        if (i.skew_count) {
+            snprintf(part, sizeof part, " skew %.1fms",
+                     i.skew_sum_ms / static_cast<double>(i.skew_count));
+            line += part;
+        }
+        if (b.state.active_link_id < links_.size()) {
+            line += " active ";
+            line += links_[b.state.active_link_id].name;
+        }
+        line += " (";
+        bool first = true;
+        for (uint32_t id : b.members) {
+            if (!links_[id].present)
+                continue;
+            line += first ? "" : ", ";
+            first = false;
+            add_link(links_[id]);
+        }
+        line += ")";
+    }
+    for (const LinkStats& l : links_) {
+        if (!l.present || !l.in_scope || l.bond != kNone)
+            continue;
+        line += line.empty() ? "" : "; ";
+        add_link(l);
+    }
+    if (!line.empty())
+        api_->log(h_, MAVBOND_LOG_INFO, line.c_str());
+}
+
+size_t Stats::status_json(char* buf, size_t len) {
+    JsonOut out(buf, len);
+    out.raw("{\"interval_s\":");
+    out.num(static_cast<double>(interval_ns_) / 1e9);
+    out.raw(",\"intervals\":%llu,\"links\":[", static_cast<unsigned long long>(intervals_));
+    bool first = true;
+    for (LinkStats& l : links_) {
+        if (!l.present || !l.in_scope)
+            continue;
+        refresh_counters(l);  // the host's counters are current even between intervals
+        const LinkTotals& t = l.total;
+        out.raw("%s{\"name\":", first ? "" : ",");
+        first = false;
+        out.str(l.name.c_str());
+        out.raw(",\"bond\":");
+        out.str(l.bond == kNone ? nullptr : bonds_[l.bond].name.c_str());
+        out.raw(",\"frames\":%llu,\"bytes\":%llu,\"lost\":%lld,\"loss_pct\":",
+                static_cast<unsigned long long>(t.frames), static_cast<unsigned long long>(t.bytes),
+                static_cast<long long>(std::max<int64_t>(t.lost, 0)));
+        out.num(loss_fraction(t.received, t.lost) * 100);
+        out.raw(",\"crc_errors\":%llu,\"garbage_bytes\":%llu",
+                static_cast<unsigned long long>(t.crc_errors),
+                static_cast<unsigned long long>(t.garbage_bytes));
+        const LinkTotals& i = l.interval;
+        out.raw(",\"interval\":{\"frames\":%llu,\"bytes\":%llu,\"lost\":%lld,\"loss_pct\":",
+                static_cast<unsigned long long>(i.frames), static_cast<unsigned long long>(i.bytes),
+                static_cast<long long>(i.lost));
+        out.num(loss_fraction(i.received, i.lost) * 100);
+        out.raw(",\"crc_errors\":%llu}}", static_cast<unsigned long long>(i.crc_errors));
+    }
+    out.raw("],\"bonds\":[");
+    first = true;
+    for (BondStats& b : bonds_) {
+        mavbond_bond_state state{};
+        state.struct_size = sizeof state;
+        bool known = api_->bond_state(h_, b.id, &state) == 0;
+        const BondTotals& t = b.total;
+        out.raw("%s{\"name\":", first ? "" : ",");
+        first = false;
+        out.str(b.name.c_str());
+        out.raw(",\"frames\":%llu,\"delivered\":%llu,\"duplicates\":%llu,\"stale\":%llu,"
+                "\"delivered_lost\":%lld,\"delivered_loss_pct\":",
+                static_cast<unsigned long long>(t.frames),
+                static_cast<unsigned long long>(t.delivered),
+                static_cast<unsigned long long>(t.duplicates),
+                static_cast<unsigned long long>(t.stale),
+                static_cast<long long>(std::max<int64_t>(t.lost, 0)));
+        out.num(loss_fraction(t.received, t.lost) * 100);
+        out.raw(",\"skew_ms\":{\"count\":%llu,\"mean\":",
+                static_cast<unsigned long long>(t.skew_count));
+        out.num(t.skew_count ? t.skew_sum_ms / static_cast<double>(t.skew_count) : 0.0);
+        out.raw(",\"max\":");
+        out.num(t.skew_max_ms);
+        out.raw(",\"pairs\":[");
+        bool first_pair = true;
+        for (uint32_t i = 0; i < b.width; i++) {
+            for (uint32_t j = 0; j < b.width; j++) {
+                const Skew& s = b.skew[i * b.width + j];
+                if (!s.count)
+                    continue;
+                const char* a = "?";
+                const char* c = "?";
+                for (uint32_t id : b.members) {
+                    if (links_[id].member == i)
+                        a = links_[id].name.c_str();
+                    if (links_[id].member == j)
+                        c = links_[id].name.c_str();
+                }
+                out.raw("%s{\"first\":", first_pair ? "" : ",");
+                first_pair = false;
+                out.str(a);
+                out.raw(",\"late\":");
+                out.str(c);
+                out.raw(",\"count\":%llu,\"mean\":", static_cast<unsigned long long>(s.count));
+                out.num(s.mean());
+                out.raw(",\"p50\":");
+                out.num(s.p50());
+                out.raw(",\"max\":");
+                out.num(s.max_ms);
+                out.raw("}");
+            }
+        }
+        out.raw("]},\"active\":");
+        bool has_active = known && state.active_link_id < links_.size();
+        out.str(has_active ? links_[state.active_link_id].name.c_str() : nullptr);
+        out.raw(",\"switches\":%llu", static_cast<unsigned long long>(known ? state.switches : 0));
+        const BondTotals& i = b.interval;
+        out.raw(",\"interval\":{\"frames\":%llu,\"delivered\":%llu,\"duplicates\":%llu,"
+                "\"stale\":%llu,\"delivered_lost\":%lld,\"delivered_loss_pct\":",
+                static_cast<unsigned long long>(i.frames),
+                static_cast<unsigned long long>(i.delivered),
+                static_cast<unsigned long long>(i.duplicates),
+                static_cast<unsigned long long>(i.stale), static_cast<long long>(i.lost));
+        out.num(loss_fraction(i.received, i.lost) * 100);
+        out.raw(",\"skew_ms_mean\":");
+        out.num(i.skew_count ? i.skew_sum_ms / static_cast<double>(i.skew_count) : 0.0);
+        out.raw("}}");
+    }
+    out.raw("]}");
+    return out.length();
+}
+
+// --- the C boundary: no exception crosses it -------------------------------------------------
+
+int st_create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg,
+              void** out_self, char* err, size_t err_len) {
+    try {
+        auto* self = new Stats(api, h);
+        if (self->init(cfg, err, err_len) != 0) {
+            delete self;
+            return -1;
+        }
+        *out_self = self;
+        return 0;
+    } catch (const std::exception& e) {
+        snprintf(err, err_len, "stats: %s", e.what());
+        return -1;
+    }
+}
+
+void st_destroy(void* self) { delete static_cast<Stats*>(self); }
+
+mavbond_verdict st_on_ingress(void* self, const mavbond_frame* f, mavbond_frame_notes* notes,
+                              const mavbond_link* from) {
+    try {
+        static_cast<Stats*>(self)->on_ingress(f, notes, from);
+    } catch (...) {
+        // Counting failed (out of memory adopting a new link): the frame still goes on.
+    }
+    return MAVBOND_PASS;
+}
+
+void st_on_link(void* self, const mavbond_link* link, mavbond_link_event event) {
+    try {
+        static_cast<Stats*>(self)->on_link(link, event);
+    } catch (...) {
+    }
+}
+
+size_t st_status_json(void* self, char* buf, size_t len) {
+    try {
+        return static_cast<Stats*>(self)->status_json(buf, len);
+    } catch (...) {
+        return 0;
+    }
+}
+
+const mavbond_plugin_descriptor kDescriptor = {
+    MAVBOND_PLUGIN_ABI_VERSION,
+    sizeof(mavbond_plugin_descriptor),
+    "stats",
+    "0.1.0",
+    "per link and bond: frames, loss from sequence gaps, delivered loss, duplicates, skew",
+    kOptions,
+    st_create,
+    st_destroy,
+    st_on_ingress,
+    nullptr,
+    st_on_link,
+    st_status_json,
+};
+
+}  // namespace
+
+extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {
+    return &kDescriptor;
+}
