@@ -1,0 +1,588 @@
+// The dedup plugin through its C ABI, built from inline YAML by FakeHost (the daemon's real
+// option validation) and driven with explicit arrival times.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <new>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "fake_host.h"
+#include "mavbond/plugin.h"
+
+extern "C" const mavbond_plugin_descriptor* mavbond_plugin_entry(void);
+
+// Counts heap allocations while g_count_allocs is set: the hot path must make none.
+namespace {
+std::atomic<bool> g_count_allocs{false};
+std::atomic<long> g_allocs{0};
+}  // namespace
+
+// GCC reads malloc/free inside replaced operators as a mismatch once they are inlined.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+void* operator new(size_t n) {
+    if (g_count_allocs.load(std::memory_order_relaxed))
+        g_allocs.fetch_add(1, std::memory_order_relaxed);
+    void* p = std::malloc(n ? n : 1);
+    if (!p)
+        throw std::bad_alloc();
+    return p;
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, size_t) noexcept { std::free(p); }
+#pragma GCC diagnostic pop
+
+namespace mavbond {
+namespace {
+
+using namespace std::chrono_literals;
+constexpr uint64_t kMs = 1'000'000;
+
+using Bytes = std::vector<uint8_t>;
+
+/// A MAVLink v2 frame (the checksum bytes only need to be the same for the same content).
+Bytes v2(uint8_t seq, uint32_t msgid, const Bytes& payload, uint8_t sysid = 1, uint8_t compid = 1) {
+    Bytes f = {0xFD, static_cast<uint8_t>(payload.size()), 0, 0, seq, sysid, compid,
+               static_cast<uint8_t>(msgid), static_cast<uint8_t>(msgid >> 8),
+               static_cast<uint8_t>(msgid >> 16)};
+    f.insert(f.end(), payload.begin(), payload.end());
+    uint16_t sum = 0;
+    for (size_t i = 1; i < f.size(); i++)
+        sum = static_cast<uint16_t>(sum * 31 + f[i]);
+    f.push_back(static_cast<uint8_t>(sum));
+    f.push_back(static_cast<uint8_t>(sum >> 8));
+    return f;
+}
+
+Bytes v1(uint8_t seq, uint8_t msgid, const Bytes& payload, uint8_t sysid = 1, uint8_t compid = 1) {
+    Bytes f = {0xFE, static_cast<uint8_t>(payload.size()), seq, sysid, compid, msgid};
+    f.insert(f.end(), payload.begin(), payload.end());
+    f.push_back(0x55);
+    f.push_back(0xAA);
+    return f;
+}
+
+constexpr uint32_t kHeartbeat = 0;
+constexpr uint32_t kAttitude = 30;  // time_boot_ms at payload offset 0
+
+Bytes heartbeat_payload() { return {0, 0, 0, 0, 2, 3, 81, 4, 3}; }
+
+Bytes attitude_payload(uint32_t time_boot_ms, uint8_t salt = 0) {
+    Bytes p(28, 0);
+    for (int i = 0; i < 4; i++)
+        p[i] = static_cast<uint8_t>(time_boot_ms >> (8 * i));
+    p[4] = salt;
+    p[8] = 0x3f;
+    return p;
+}
+
+class DedupTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        plugin_ = mavbond_plugin_entry();
+        a_ = &host_.add_link("a", "vehicle");
+        b_ = &host_.add_link("b", "vehicle");
+    }
+
+    bool create(const std::string& options) {
+        self_ = host_.create(plugin_, options);
+        return self_ != nullptr;
+    }
+
+    /// Hands `raw` to the plugin as received on `link` at `t_ns` (0: the host's clock).
+    mavbond_verdict feed(const mavbond_link& link, const Bytes& raw, uint64_t t_ns = 0,
+                         mavbond_frame_notes* notes_out = nullptr, uint32_t note_flags = 0) {
+        mavbond_frame f = host_.frame(raw);
+        bool is_v2 = raw[0] == 0xFD;
+        size_t header = is_v2 ? 10 : 6;
+        f.version = is_v2 ? 2 : 1;
+        f.crc_checked = 1;
+        f.seq = raw[is_v2 ? 4 : 2];
+        f.sysid = raw[is_v2 ? 5 : 3];
+        f.compid = raw[is_v2 ? 6 : 4];
+        f.msgid = is_v2 ? (raw[7] | raw[8] << 8 | raw[9] << 16) : raw[5];
+        f.payload = raw.data() + header;
+        f.payload_len = raw[1];
+        if (f.msgid == kAttitude) {
+            f.timestamp_offset = 0;
+            f.timestamp_size = 4;
+        }
+        if (t_ns)
+            f.rx_time_ns = t_ns;
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        notes.flags = note_flags;
+        mavbond_verdict v = plugin_->on_ingress(self_, &f, &notes, &link);
+        if (notes_out)
+            *notes_out = notes;
+        return v;
+    }
+
+    std::string status() {
+        size_t need = plugin_->status_json(self_, nullptr, 0);
+        std::string s(need + 1, '\0');
+        plugin_->status_json(self_, s.data(), s.size());
+        s.resize(need);
+        return s;
+    }
+
+    uint64_t now() { return host_.now_ns(); }
+
+    FakeHost host_;
+    const mavbond_plugin_descriptor* plugin_ = nullptr;
+    const mavbond_link* a_ = nullptr;
+    const mavbond_link* b_ = nullptr;
+    void* self_ = nullptr;
+};
+
+TEST_F(DedupTest, CopyFromAnotherLinkIsDropped) {
+    ASSERT_TRUE(create("window: 500ms")) << host_.last_error();
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    mavbond_frame_notes notes{};
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, now(), &notes));
+    EXPECT_TRUE(notes.flags & MAVBOND_NOTE_HASHED);
+    EXPECT_FALSE(notes.flags & MAVBOND_NOTE_DUPLICATE);
+    uint64_t first_hash = notes.hash[0];
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, now() + 40 * kMs, &notes));
+    EXPECT_TRUE(notes.flags & MAVBOND_NOTE_DUPLICATE);
+    EXPECT_EQ(first_hash, notes.hash[0]);
+    EXPECT_EQ(a_->id, notes.first_link_id);
+    EXPECT_EQ(static_cast<int64_t>(40 * kMs), notes.skew_ns);
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"a\",\"passed\":1,\"duplicates\":0")) << s;
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":0,\"duplicates\":1")) << s;
+}
+
+TEST_F(DedupTest, RepeatOnTheSameLinkPasses) {
+    ASSERT_TRUE(create("window: 5s"));
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    uint64_t t = now();
+    // The same bytes 256 frames later on the same link: a new frame, not a copy.
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t + 256 * kMs));
+    // Link b delivers its copies of both: both are duplicates.
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 30 * kMs));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 286 * kMs));
+    // A third on b, with no instance left that b has not had: new.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, f, t + 512 * kMs));
+}
+
+TEST_F(DedupTest, CopyAfterTheWindowPasses) {
+    ASSERT_TRUE(create("window: 500ms"));
+    Bytes f = v2(1, kAttitude, attitude_payload(1000));
+    uint64_t t = now();
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 500 * kMs));  // the window's last instant
+    Bytes g = v2(2, kAttitude, attitude_payload(1001));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, g, t + 1000 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, g, t + 1501 * kMs));
+}
+
+TEST_F(DedupTest, WindowZeroDisablesDedup) {
+    ASSERT_TRUE(create("window: 0s"));
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, f));
+}
+
+TEST_F(DedupTest, LinksOutsideBondsPassUntouchedAndLeaveNoTrace) {
+    const mavbond_link& c = host_.add_link("c");
+    ASSERT_TRUE(create("window: 1s"));
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    mavbond_frame_notes notes{};
+    EXPECT_EQ(MAVBOND_PASS, feed(c, f, now(), &notes));
+    EXPECT_EQ(0u, notes.flags);
+    EXPECT_EQ(MAVBOND_PASS, feed(c, f));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f));  // c's frames were not remembered
+    EXPECT_EQ(MAVBOND_PASS, feed(c, f));
+}
+
+TEST_F(DedupTest, BondsHaveSeparateMemories) {
+    const mavbond_link& x = host_.add_link("x", "other");
+    ASSERT_TRUE(create("window: 1s"));
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f));
+    EXPECT_EQ(MAVBOND_PASS, feed(x, f));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f));
+}
+
+TEST_F(DedupTest, OnlyScopedBondsAreDeduplicated) {
+    const mavbond_link& x = host_.add_link("x", "other");
+    const mavbond_link& y = host_.add_link("y", "other");
+    ASSERT_TRUE(create("bonds: [vehicle]\nwindow: 1s")) << host_.last_error();
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    EXPECT_EQ(MAVBOND_PASS, feed(x, f));
+    EXPECT_EQ(MAVBOND_PASS, feed(y, f));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f));
+}
+
+TEST_F(DedupTest, DroppedFramesAreNotRemembered) {
+    ASSERT_TRUE(create("window: 1s"));
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    mavbond_frame_notes notes{};
+    // An earlier filter dropped a's copy: it must not shadow b's good one.
+    feed(*a_, f, now(), &notes, MAVBOND_NOTE_DROPPED);
+    EXPECT_EQ(MAVBOND_NOTE_DROPPED, notes.flags);
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, f, now() + 10 * kMs));
+    EXPECT_EQ(MAVBOND_DROP, feed(*a_, f, now() + 20 * kMs));
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"a\",\"passed\":0,\"duplicates\":1")) << s;
+}
+
+TEST_F(DedupTest, ContentKeyMatchesStreamsWithTheirOwnSequence) {
+    ASSERT_TRUE(create("window: 1s\nkey: content"));
+    Bytes p = attitude_payload(5000);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(200, kAttitude, p)));
+    // v1 with its zeros against v2 with the zeros truncated: one message.
+    Bytes hb = heartbeat_payload();
+    hb[8] = 0;
+    Bytes truncated(hb.begin(), hb.end() - 1);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v1(11, 0, hb)));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(201, kHeartbeat, truncated)));
+    // Another sender is another message.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(202, kAttitude, p, 2)));
+}
+
+TEST_F(DedupTest, FrameKeyKeepsSequenceApart) {
+    ASSERT_TRUE(create("window: 1s\nkey: frame"));
+    Bytes p = attitude_payload(5000);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(200, kAttitude, p)));
+}
+
+TEST_F(DedupTest, Murmur3_32ReproducesThePaperSettings) {
+    ASSERT_TRUE(create("hash: murmur3_32\nwindow: 5s\ndrop_stale: false")) << host_.last_error();
+    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+    mavbond_frame_notes notes{};
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, now(), &notes));
+    EXPECT_EQ(0u, notes.hash[1]);
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, now() + 4900 * kMs));
+    EXPECT_NE(std::string::npos, status().find("\"hash\":\"murmur3_32\""));
+}
+
+TEST_F(DedupTest, StaleSampleIsDroppedTimestamplessNever) {
+    ASSERT_TRUE(create("window: 1s"));
+    uint64_t t = now();
+    mavbond_frame_notes notes{};
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(2000)), t));
+    // b's sample from 500 ms earlier (a lost it): delivering it would move the vehicle back.
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(0, kAttitude, attitude_payload(1500)), t + kMs, &notes));
+    EXPECT_TRUE(notes.flags & MAVBOND_NOTE_STALE);
+    EXPECT_FALSE(notes.flags & MAVBOND_NOTE_DUPLICATE);
+    // The same time from another sender, or a newer one, passes.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(2, kAttitude, attitude_payload(1500), 2), t + 2 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(3, kAttitude, attitude_payload(2001)), t + 3 * kMs));
+    // Messages without a timestamp are never late, whatever order they come in.
+    for (uint8_t seq = 10; seq > 0; seq--)
+        EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(seq, kHeartbeat, heartbeat_payload()), t + 4 * kMs));
+    // The autopilot reboots: time_boot_ms starts again near 0.
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(0, kAttitude, attitude_payload(50000), 1, 1), t + 5 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(100)), t + 6 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(2, kAttitude, attitude_payload(200)), t + 7 * kMs));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(3, kAttitude, attitude_payload(150)), t + 8 * kMs));
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":12,\"duplicates\":0,\"stale\":2"))
+        << s;
+}
+
+TEST_F(DedupTest, TruncatedTimestampReadsAsZero) {
+    ASSERT_TRUE(create("window: 1s"));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(1000))));
+    // A v2 payload cut to 2 bytes: time_boot_ms = 0x00000102 ms, 1000 - 258 ms back.
+    Bytes p = attitude_payload(0x0102);
+    EXPECT_EQ(MAVBOND_DROP, feed(*a_, v2(2, kAttitude, Bytes(p.begin(), p.begin() + 2))));
+}
+
+TEST_F(DedupTest, DropStaleOff) {
+    ASSERT_TRUE(create("window: 1s\ndrop_stale: false"));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(2000))));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(0, kAttitude, attitude_payload(1500))));
+}
+
+TEST_F(DedupTest, BadOptionValuesNameFileLineColumn) {
+    EXPECT_FALSE(create("window: 1s\nhash: md5"));
+    const std::string& e = host_.last_error();
+    EXPECT_NE(std::string::npos, e.find("test.yaml:")) << e;
+    EXPECT_NE(std::string::npos, e.find("option 'hash'")) << e;
+    EXPECT_NE(std::string::npos, e.find("murmur3_128")) << e;
+    // file:line:column, then the message.
+    size_t colon = e.find(':');
+    ASSERT_NE(std::string::npos, colon);
+    EXPECT_TRUE(std::isdigit(static_cast<unsigned char>(e[colon + 1]))) << e;
+    EXPECT_NE(std::string::npos, e.find(':', colon + 1)) << e;
+
+    EXPECT_FALSE(create("key: bytes"));
+    EXPECT_NE(std::string::npos, host_.last_error().find("option 'key'")) << host_.last_error();
+    EXPECT_FALSE(create("max_entries: 0"));
+    EXPECT_NE(std::string::npos, host_.last_error().find("option 'max_entries'"));
+    EXPECT_FALSE(create("window: soon"));
+    EXPECT_NE(std::string::npos, host_.last_error().find("'window'")) << host_.last_error();
+}
+
+TEST_F(DedupTest, UnknownOptionIsRejectedByTheHost) {
+    EXPECT_FALSE(create("windw: 1s"));
+    EXPECT_NE(std::string::npos, host_.last_error().find("unknown option 'windw'"))
+        << host_.last_error();
+}
+
+TEST_F(DedupTest, DescriptorDeclaresOptionsWithDefaultsAndHelp) {
+    int n = 0;
+    for (const mavbond_option* o = plugin_->options; o->key; o++, n++) {
+        EXPECT_NE(nullptr, o->default_value) << o->key;
+        EXPECT_NE(nullptr, o->help) << o->key;
+    }
+    EXPECT_EQ(5, n);
+    EXPECT_STREQ("dedup", plugin_->name);
+    EXPECT_EQ(MAVBOND_PLUGIN_ABI_VERSION, plugin_->abi_version);
+    ASSERT_TRUE(create(""));  // every default is valid
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":2000.0")) << status();
+}
+
+// --- simulations ---------------------------------------------------------------------------
+
+/// A source sending `count` frames at `rate` per second: every 8th is a HEARTBEAT whose bytes
+/// repeat every 256 frames (the sequence byte wraps), the others carry a unique timestamp.
+std::vector<Bytes> source_stream(int count) {
+    std::vector<Bytes> frames;
+    frames.reserve(count);
+    for (int i = 0; i < count; i++) {
+        auto seq = static_cast<uint8_t>(i);
+        if (i % 8 == 0)
+            frames.push_back(v2(seq, kHeartbeat, heartbeat_payload()));
+        else
+            frames.push_back(v2(seq, kAttitude, attitude_payload(static_cast<uint32_t>(i))));
+    }
+    return frames;
+}
+
+struct Arrival {
+    uint64_t t;
+    int link;    // 0: a, 1: b
+    int source;  // index of the source frame
+};
+
+struct LinkModel {
+    uint64_t delay_ns;
+    uint64_t jitter_ns;
+    double loss;
+};
+
+/// Arrivals of every source frame over each link, in time order (each link keeps its order).
+std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
+                              const std::vector<LinkModel>& links, uint32_t seed) {
+    std::mt19937_64 rng(seed);
+    std::vector<Arrival> out;
+    for (int l = 0; l < static_cast<int>(links.size()); l++) {
+        std::bernoulli_distribution lost(links[l].loss);
+        std::uniform_int_distribution<uint64_t> jitter(0, links[l].jitter_ns);
+        uint64_t last = 0;
+        for (int i = 0; i < count; i++) {
+            uint64_t t = start + i * period_ns + links[l].delay_ns + jitter(rng);
+            if (lost(rng))
+                continue;
+            t = std::max(t, last);
+            last = t;
+            out.push_back({t, l, i});
+        }
+    }
+    std::stable_sort(out.begin(), out.end(),
+                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
+    return out;
+}
+
+struct Outcome {
+    int sent = 0, arrivals = 0, lost_on_all = 0, expected = 0, delivered = 0;
+    int legit_dropped = 0;     // instances received but not delivered (multiset)
+    int duplicates_passed = 0;  // deliveries beyond the instances received (multiset)
+    int wrong_verdicts = 0;    // arrivals whose verdict differs from first-copy-passes
+};
+
+Outcome run(DedupTest& t, const std::vector<Bytes>& frames, const std::vector<Arrival>& arrivals,
+            const std::vector<const mavbond_link*>& links,
+            const std::function<mavbond_verdict(const mavbond_link&, const Bytes&, uint64_t)>& feed) {
+    (void)t;
+    Outcome o;
+    o.sent = static_cast<int>(frames.size());
+    o.arrivals = static_cast<int>(arrivals.size());
+    std::vector<int> copies(frames.size(), 0);
+    std::map<Bytes, int> expected, delivered;
+    for (const Arrival& a : arrivals) {
+        bool first = copies[a.source]++ == 0;
+        if (first)
+            expected[frames[a.source]]++;
+        mavbond_verdict v = feed(*links[a.link], frames[a.source], a.t);
+        if (v == MAVBOND_PASS) {
+            delivered[frames[a.source]]++;
+            o.delivered++;
+        }
+        if ((v == MAVBOND_PASS) != first)
+            o.wrong_verdicts++;
+    }
+    for (int c : copies)
+        o.lost_on_all += c == 0;
+    for (const auto& [bytes, n] : expected) {
+        o.expected += n;
+        int d = delivered.count(bytes) ? delivered[bytes] : 0;
+        o.legit_dropped += std::max(0, n - d);
+    }
+    for (const auto& [bytes, n] : delivered) {
+        int e = expected.count(bytes) ? expected[bytes] : 0;
+        o.duplicates_passed += std::max(0, n - e);
+    }
+    return o;
+}
+
+class DedupSkewTest : public DedupTest, public ::testing::WithParamInterface<int> {};
+
+TEST_P(DedupSkewTest, EveryCopyDroppedNoOriginalDropped) {
+    ASSERT_TRUE(create("window: 3s\ndrop_stale: false"));
+    uint64_t skew = static_cast<uint64_t>(GetParam()) * kMs;
+    auto frames = source_stream(10000);
+    auto arrivals = simulate(10000, now(), kMs,
+                             {{5 * kMs, 2 * kMs, 0.0}, {5 * kMs + skew, 2 * kMs, 0.0}}, 7);
+    Outcome o = run(*this, frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    EXPECT_EQ(10000, o.delivered);
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+    EXPECT_EQ(0, o.wrong_verdicts);
+}
+
+INSTANTIATE_TEST_SUITE_P(Skews, DedupSkewTest, ::testing::Values(300, 2000));
+
+TEST_F(DedupTest, LossOnBothLinksDropsNoLegitimateFrameAndPassesNoCopy) {
+    // 1000 frames/s, identical HEARTBEATs every 256 frames, b 300 ms behind a, 5% independent
+    // loss on each: a link's k-th arrival of some bytes is often not the k-th instance.
+    ASSERT_TRUE(create("window: 1s\ndrop_stale: false"));
+    const int count = 60000;
+    auto frames = source_stream(count);
+    auto arrivals = simulate(count, now(), kMs,
+                             {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}}, 20240611);
+    Outcome o = run(*this, frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    std::printf("loss case: %d frames sent, %d arrivals, %d lost on both links (%.3f%%), "
+                "%d expected, %d delivered, %d legitimate dropped, %d copies passed, "
+                "%d verdicts off\n",
+                o.sent, o.arrivals, o.lost_on_all, 100.0 * o.lost_on_all / o.sent, o.expected,
+                o.delivered, o.legit_dropped, o.duplicates_passed, o.wrong_verdicts);
+    std::printf("status: %s\n", status().c_str());
+    EXPECT_EQ(o.sent - o.lost_on_all, o.expected);
+    EXPECT_EQ(o.expected, o.delivered);
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+    EXPECT_EQ(0, o.wrong_verdicts);
+    EXPECT_NE(std::string::npos, status().find("\"from\":\"a\",\"to\":\"b\",\"offset_ms\":30"))
+        << status();
+}
+
+TEST_F(DedupTest, ArrivalCountingWouldFailTheLossCase) {
+    // The same stream, checked against the naive rule (a copy is a duplicate when the other
+    // link has had more instances of the bytes): shows the loss case is a real test.
+    const int count = 60000;
+    auto frames = source_stream(count);
+    auto arrivals = simulate(count, now(), kMs,
+                             {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}}, 20240611);
+    std::map<Bytes, std::pair<int, int>> seen;  // arrivals per link within the stream
+    Outcome o = run(*this, frames, arrivals, {a_, b_},
+                    [&](const mavbond_link& l, const Bytes& f, uint64_t) {
+                        auto& [na, nb] = seen[f];
+                        int& mine = l.id == a_->id ? na : nb;
+                        int other = l.id == a_->id ? nb : na;
+                        return ++mine <= other ? MAVBOND_DROP : MAVBOND_PASS;
+                    });
+    std::printf("naive arrival counting: %d legitimate dropped, %d copies passed\n",
+                o.legit_dropped, o.duplicates_passed);
+    EXPECT_GT(o.legit_dropped + o.duplicates_passed, 0);
+}
+
+TEST_F(DedupTest, MemoryCapForgetsOldestAndNeverDropsOriginals) {
+    ASSERT_TRUE(create("window: 1s\nmax_entries: 16\ndrop_stale: false"));
+    const int count = 30000;  // 30 s
+    auto frames = source_stream(count);
+    auto arrivals = simulate(count, now(), kMs, {{5 * kMs, 0, 0.0}, {305 * kMs, 0, 0.0}}, 3);
+    int originals_dropped = 0, copies_passed = 0;
+    std::vector<int> copies(count, 0);
+    for (const Arrival& a : arrivals) {
+        bool first = copies[a.source]++ == 0;
+        mavbond_verdict v = feed(a.link == 0 ? *a_ : *b_, frames[a.source], a.t);
+        originals_dropped += first && v == MAVBOND_DROP;
+        copies_passed += !first && v == MAVBOND_PASS;
+    }
+    EXPECT_EQ(0, originals_dropped);
+    EXPECT_GT(copies_passed, 0);  // beyond memory, copies pass: fail open
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"entries\":")) << s;
+    EXPECT_EQ(std::string::npos, s.find("\"evicted_early\":0,")) << s;
+    EXPECT_NE(std::string::npos, s.find("\"instances\":16,")) << s;
+    // Logged at most once per 10 s of traffic, never per frame.
+    int lines = 0;
+    for (const auto& line : host_.logs)
+        lines += line.find("memory full") != std::string::npos;
+    EXPECT_GE(lines, 1);
+    EXPECT_LE(lines, 4);
+}
+
+TEST_F(DedupTest, HotPathAllocatesNothingAndKeepsUp) {
+    // 100k frames/s over two links, 500 ms window: 50k instances live.
+    ASSERT_TRUE(create("window: 500ms\nmax_entries: 65536\ndrop_stale: true"));
+    const int count = 300000;  // 3 s of traffic
+    auto frames = source_stream(count);
+    const uint64_t period = 10'000;  // 10 us
+    auto arrivals = simulate(count, now(), period, {{kMs, 0, 0.01}, {21 * kMs, 0, 0.01}}, 5);
+    std::vector<mavbond_frame> views;
+    views.reserve(arrivals.size());
+    // Frame views built before timing: the daemon's parser hands them over ready.
+    for (const Arrival& a : arrivals) {
+        const Bytes& raw = frames[a.source];
+        mavbond_frame f = host_.frame(raw);
+        f.version = 2;
+        f.seq = raw[4];
+        f.sysid = raw[5];
+        f.compid = raw[6];
+        f.msgid = raw[7];
+        f.payload = raw.data() + 10;
+        f.payload_len = raw[1];
+        if (f.msgid == kAttitude) {
+            f.timestamp_offset = 0;
+            f.timestamp_size = 4;
+        }
+        f.rx_time_ns = a.t;
+        views.push_back(f);
+    }
+    size_t warm = views.size() / 3;  // fills the window: steady state after
+    for (size_t i = 0; i < warm; i++) {
+        mavbond_frame_notes notes{};
+        plugin_->on_ingress(self_, &views[i], &notes, arrivals[i].link == 0 ? a_ : b_);
+    }
+    size_t passed = 0;
+    g_allocs = 0;
+    g_count_allocs = true;
+    auto start = std::chrono::steady_clock::now();
+    for (size_t i = warm; i < views.size(); i++) {
+        mavbond_frame_notes notes{};
+        passed += plugin_->on_ingress(self_, &views[i], &notes, arrivals[i].link == 0 ? a_ : b_) ==
+                  MAVBOND_PASS;
+    }
+    auto elapsed = std::chrono::steady_clock::now() - start;
+    g_count_allocs = false;
+    double ns_per_frame =
+        static_cast<double>(std::chrono::duration_cast<std::chrono::nanoseconds>(elapsed).count()) /
+        static_cast<double>(views.size() - warm);
+    std::printf("hot path: %zu frames, %.0f ns/frame (%.1f M frames/s), %ld allocations, "
+                "%zu passed\n",
+                views.size() - warm, ns_per_frame, 1e3 / ns_per_frame, g_allocs.load(), passed);
+    EXPECT_EQ(0, g_allocs.load());
+    EXPECT_LT(ns_per_frame, 10'000.0);  // 100k frames/s leaves 10 us each, even unoptimised
+}
+
+}  // namespace
+}  // namespace mavbond
