@@ -212,12 +212,14 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
     for (size_t i = 0; i < n; i++)
         adopt(all[i]);
 
-    for (const auto& name : priority_) {
-        bool member = false;
-        for (const Link& l : links_)
-            member = member || (l.present && l.bond != kNone && l.name == name);
-        if (!member) {
-            std::string msg = "'" + name + "' is not a link of a bond this filter handles";
+    // The names cannot be checked against the links here: the daemon creates filters before
+    // its endpoints, and learned peers appear later still. A repeat is certainly a mistake.
+    for (size_t i = 0; i < priority_.size(); i++) {
+        bool repeated = std::find(priority_.begin(), priority_.begin() + i, priority_[i]) !=
+                        priority_.begin() + i;
+        if (priority_[i].empty() || repeated) {
+            std::string msg = priority_[i].empty() ? "empty link name"
+                                                   : "'" + priority_[i] + "' is listed twice";
             api_->cfg_error(cfg, "priority", msg.c_str(), err, err_len);
             return -1;
         }
@@ -240,9 +242,14 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
     return 0;
 }
 
+/// A link's place in `priority`: its endpoint's name matches, so a peer learned by a UDP or TCP
+/// server ("radio@10.0.0.2:14550") ranks as its endpoint ("radio").
 uint32_t LinkSwitch::rank_of(const char* name) const {
+    const char* at = strchr(name, '@');
+    size_t len = at ? static_cast<size_t>(at - name) : strlen(name);
     for (size_t i = 0; i < priority_.size(); i++) {
-        if (priority_[i] == name)
+        const std::string& p = priority_[i];
+        if (p == name || (p.size() == len && p.compare(0, len, name, len) == 0))
             return static_cast<uint32_t>(i);
     }
     return kNone;
@@ -303,6 +310,11 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
                                        const mavbond_link* from) {
     Link* l = link_for(from);
     uint64_t now = f->rx_time_ns ? f->rx_time_ns : api_->now_ns(h_);
+    // A link back from silence: the sequence jump over the outage says nothing (modulo 256 it
+    // is anything from 0 to 127 frames) and the outage already counted as silence, so loss is
+    // measured afresh from here rather than charging a random figure to the returning link.
+    if (l->heard && now - l->last_heard_ns >= switch_after_)
+        l->sources.clear();
     // Every frame that arrived proves the link alive and feeds its loss figure, even one an
     // earlier filter dropped (a duplicate from a backup is still a sign of a working backup).
     l->heard = true;
@@ -332,7 +344,10 @@ void LinkSwitch::on_link(const mavbond_link* link, mavbond_link_event event) {
         if (l.bond != kNone) {
             Bond& b = bonds_[l.bond];
             order_members(b);
-            if (b.active == kNone)
+            // Until the first switch, the active link is the most preferred one present: links
+            // appear one by one as the daemon starts (or as peers first send), and the order
+            // they happen to appear in is not a preference.
+            if (b.active == kNone || (!b.switched && b.active != b.members.front()))
                 make_active(b, b.members.front(), nullptr);
         }
         return;
@@ -505,7 +520,7 @@ size_t LinkSwitch::status_json(char* buf, size_t len) {
         out.raw("%s{\"name\":", i ? "," : "");
         out.str(b.name.c_str());
         out.raw(",\"active\":");
-        out.str(b.active == kNone ? nullptr : links_[b.active].name.c_str());
+        out.str(b.active == kNone ? "" : links_[b.active].name.c_str());  // as the host does
         out.raw(",\"switches\":%llu,\"links\":[", static_cast<unsigned long long>(b.switches));
         for (size_t j = 0; j < b.members.size(); j++) {
             Link& l = links_[b.members[j]];

@@ -278,6 +278,7 @@ TEST_F(LinkSwitchTest, FailbackAfterTheMostPreferredLinkIsHealthyLongEnough) {
     run(seconds(2), {&lte});
     ASSERT_EQ(active(), "lte");
     radio.on = true;
+    radio.seq += 100;  // the frames sent into the outage: not charged as loss on return
     run(milliseconds(2900), {&radio, &lte});
     EXPECT_EQ(active(), "lte");  // healthy, but not yet for 3s
     run(milliseconds(300), {&radio, &lte});
@@ -340,13 +341,35 @@ TEST_F(LinkSwitchTest, OptionErrorsNameFileLineAndColumn) {
         << host_.last_error();
 }
 
-TEST_F(LinkSwitchTest, UnknownPriorityLinkIsAnError) {
+TEST_F(LinkSwitchTest, RepeatedPriorityLinkIsAnError) {
     host_.add_link("radio", "vehicle");
     host_.add_link("lte", "vehicle");
-    EXPECT_EQ(host_.create(plugin_, "priority: [radio, wifi]"), nullptr);
+    EXPECT_EQ(host_.create(plugin_, "priority: [radio, lte, radio]"), nullptr);
     const std::string& e = host_.last_error();
     EXPECT_NE(e.find("test.yaml:"), std::string::npos) << e;
-    EXPECT_NE(e.find("option 'priority': 'wifi' is not a link"), std::string::npos) << e;
+    EXPECT_NE(e.find("option 'priority': 'radio' is listed twice"), std::string::npos) << e;
+}
+
+TEST_F(LinkSwitchTest, LearnedPeersRankAsTheirEndpointAndMayAppearLater) {
+    // As in the daemon: filters exist before the links; a UDP server's peers are the links,
+    // named after their endpoint, and the less preferred one may send first.
+    host_.add_link("lte", "vehicle");
+    create("priority: [radio, lte]\nswitch_after: 500ms");
+    EXPECT_EQ(active(), "lte");
+    const mavbond_link& radio = host_.add_link("radio@10.0.0.2:14550", "vehicle");
+    plugin_->on_link(self_, &radio, MAVBOND_LINK_ADDED);
+    EXPECT_EQ(active(), "radio@10.0.0.2:14550");  // no switch has happened: take the preferred
+    Sender r{"radio@10.0.0.2:14550"}, l{"lte"};
+    run(seconds(1), {&r, &l});
+    EXPECT_EQ(send("lte", l.seq++), MAVBOND_DROP);
+    plugin_->on_link(self_, &radio, MAVBOND_LINK_REMOVED);  // the peer timed out
+    EXPECT_EQ(active(), "lte");
+    EXPECT_TRUE(logged("active link radio@10.0.0.2:14550 -> lte: "
+                       "radio@10.0.0.2:14550 was removed"));
+    // Once a switch happened, a returning preferred link waits for failback (never, here).
+    plugin_->on_link(self_, &radio, MAVBOND_LINK_ADDED);
+    run(seconds(3), {&r, &l});
+    EXPECT_EQ(active(), "lte");
 }
 
 TEST_F(LinkSwitchTest, ZeroSwitchAfterIsAnError) {

@@ -79,6 +79,11 @@ public:
         return t ? t->step(seq) : SeqStep{1, 0};
     }
     uint32_t size() const { return used_; }
+    /// Forgets every source (O(capacity): for rare events such as a link coming back).
+    void clear() {
+        slots_ = {};
+        used_ = 0;
+    }
 
 private:
     static constexpr uint32_t kCapacity = 64;

@@ -498,7 +498,8 @@ size_t Stats::status_json(char* buf, size_t len) {
         first = false;
         out.str(l.name.c_str());
         out.raw(",\"bond\":");
-        out.str(l.bond == kNone ? nullptr : bonds_[l.bond].name.c_str());
+        // "" rather than null for "none", as in the host's own status document.
+        out.str(l.bond == kNone ? "" : bonds_[l.bond].name.c_str());
         out.raw(",\"frames\":%llu,\"bytes\":%llu,\"lost\":%lld,\"loss_pct\":",
                 static_cast<unsigned long long>(t.frames), static_cast<unsigned long long>(t.bytes),
                 static_cast<long long>(std::max<int64_t>(t.lost, 0)));
@@ -567,7 +568,7 @@ size_t Stats::status_json(char* buf, size_t len) {
         }
         out.raw("]},\"active\":");
         bool has_active = known && state.active_link_id < links_.size();
-        out.str(has_active ? links_[state.active_link_id].name.c_str() : nullptr);
+        out.str(has_active ? links_[state.active_link_id].name.c_str() : "");
         out.raw(",\"switches\":%llu", static_cast<unsigned long long>(known ? state.switches : 0));
         const BondTotals& i = b.interval;
         out.raw(",\"interval\":{\"frames\":%llu,\"delivered\":%llu,\"duplicates\":%llu,"
