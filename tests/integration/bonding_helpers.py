@@ -1,0 +1,346 @@
+"""Helpers for the bonding tests: configs with bonds and filters, the plugin directory of a
+build, link emulators (tests/tools/linkemu.py) run as real processes, a paced sender that
+records when each frame left, and a receiver thread that timestamps every frame it gets.
+
+Everything is real: mavbond processes, linkemu processes, UDP sockets on 127.0.0.1."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple
+
+from helpers import (HOST, REPO, Daemon, FrameMaker, free_port, split_stream,  # noqa: F401
+                     udp_client, udp_server, _yaml_scalar)
+
+TOOLS = REPO / "tests" / "tools"
+LINKEMU = TOOLS / "linkemu.py"
+sys.path.insert(0, str(TOOLS))
+import tlog  # noqa: E402
+
+
+# --- plugins ------------------------------------------------------------------------------
+
+def plugin_dir_for(binary: str, workdir: Optional[Path] = None) -> str:
+    """The directory to pass as --plugin-dir for a mavbond binary of a build tree: where
+    dedup.so lies under <build>/plugins. When the plugins lie in one folder each
+    (<build>/plugins/<name>/<name>.so), a folder of symlinks to all of them is made."""
+    build = Path(binary).resolve().parent.parent  # <build>/src/mavbond -> <build>
+    root = build / "plugins"
+    found = sorted(p for p in root.rglob("*.so") if p.is_file()) if root.is_dir() else []
+    if not found:
+        raise FileNotFoundError(f"no plugin .so under {root} (build the plugins)")
+    dirs = {p.parent for p in found}
+    dedup = [p for p in found if p.name == "dedup.so"]
+    if len(dirs) == 1:
+        return str(found[0].parent)
+    if dedup and all(p.parent == dedup[0].parent for p in found):
+        return str(dedup[0].parent)
+    out = Path(tempfile.mkdtemp(prefix="mavbond-plugins-", dir=workdir))
+    for p in found:
+        link = out / p.name
+        if not link.exists():
+            link.symlink_to(p)
+    return str(out)
+
+
+# --- config -------------------------------------------------------------------------------
+
+def _flow(d: dict) -> str:
+    return "{" + ", ".join(f"{k}: {_yaml_scalar(v)}" for k, v in d.items()) + "}"
+
+
+def bond_config(endpoints: List[dict], bonds: Sequence[dict] = (),
+                filters: Sequence[dict] = (), **top) -> str:
+    """YAML: top-level scalars, endpoints, bonds and filters as flow mappings."""
+    lines = [f"{k}: {_yaml_scalar(v)}" for k, v in top.items()]
+    lines.append("endpoints:")
+    lines += [f"  - {_flow(e)}" for e in endpoints]
+    if bonds:
+        lines.append("bonds:")
+        lines += [f"  - {_flow(b)}" for b in bonds]
+    if filters:
+        lines.append("filters:")
+        lines += [f"  - {_flow(f)}" for f in filters]
+    return "\n".join(lines) + "\n"
+
+
+class Gateway(Daemon):
+    """A mavbond with bonds and filters; its stats() knows the endpoint names."""
+
+    def __init__(self, binary: str, workdir: Path, endpoints: List[dict],
+                 bonds: Sequence[dict] = (), filters: Sequence[dict] = (),
+                 name: str = "mavbond", plugin_dir: Optional[str] = None,
+                 log_level: str = "debug", **top):
+        args = ["--log-level", log_level]
+        if plugin_dir:
+            args += ["--plugin-dir", plugin_dir]
+        super().__init__(binary, workdir, bond_config(endpoints, bonds, filters, **top),
+                         name=name, extra_args=args)
+        self.endpoint_names = [e["name"] for e in endpoints]
+
+
+# --- link emulators -----------------------------------------------------------------------
+
+class Emu:
+    """One linkemu process between `listen` (side A sends here) and `forward` (side B).
+    Drops are logged to a file; counters come from its stdout on stop()."""
+
+    def __init__(self, workdir: Path, name: str, listen_port: int, forward_port: int,
+                 seed: int = 1, **opts):
+        self.name = name
+        self.listen_port = listen_port
+        self.forward_port = forward_port
+        self.drops_path = workdir / f"linkemu-{name}-drops.jsonl"
+        self.out_path = workdir / f"linkemu-{name}.out"
+        self.err_path = workdir / f"linkemu-{name}.err"
+        args = [sys.executable, str(LINKEMU), "--listen", f"{HOST}:{listen_port}",
+                "--forward", f"{HOST}:{forward_port}", "--seed", str(seed),
+                "--log-drops", str(self.drops_path)]
+        for k, v in opts.items():
+            flag = "--" + k.replace("_", "-")
+            for x in (v if isinstance(v, (list, tuple)) else [v]):
+                if x is True:
+                    args.append(flag)
+                else:
+                    args += [flag, str(x)]
+        self.args = args
+        self.proc: Optional[subprocess.Popen] = None
+        self._counters: Optional[Dict[str, dict]] = None
+        self.t_start: Optional[float] = None
+
+    def start(self, timeout: float = 5.0) -> "Emu":
+        self._out = open(self.out_path, "wb")
+        self._err = open(self.err_path, "wb")
+        self.proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=self._out,
+                                     stderr=self._err)
+        deadline = time.monotonic() + timeout
+        while b"listening on" not in self.err_path.read_bytes():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"linkemu {self.name} did not start: "
+                                     f"{self.err_path.read_text(errors='replace')}")
+            time.sleep(0.01)
+        self.t_start = time.monotonic()
+        return self
+
+    def stop(self) -> Dict[str, dict]:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc is not None:
+            self._out.close()
+            self._err.close()
+        if self._counters is None:
+            rows = [json.loads(l) for l in self.out_path.read_text().splitlines()
+                    if l.startswith("{")]
+            self._counters = {r["direction"]: r for r in rows[-2:]}
+        return self._counters
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def counters(self) -> Dict[str, dict]:
+        return self.stop() if self._counters is None else self._counters
+
+    def drops(self, direction: str = "up") -> List[dict]:
+        if not self.drops_path.exists():
+            return []
+        return [r for r in (json.loads(l) for l in self.drops_path.read_text().splitlines() if l)
+                if r["direction"] == direction]
+
+    def dropped(self, direction: str = "up") -> set:
+        """Indices of the datagrams this link did not forward (corrupted ones are forwarded)."""
+        return {r["index"] for r in self.drops(direction) if r["reason"] != "corrupted"}
+
+    def corrupted(self, direction: str = "up") -> set:
+        return {r["index"] for r in self.drops(direction) if r["reason"] == "corrupted"}
+
+    def loss_rate(self, direction: str = "up") -> float:
+        c = self.counters()[direction]
+        lost = c["received"] - c["forwarded"]
+        return lost / c["received"] if c["received"] else 0.0
+
+
+# --- sending and receiving ----------------------------------------------------------------
+
+def udp_sock(port: int = 0, rcvbuf: int = 8 << 20) -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
+    s.bind((HOST, port))
+    return s
+
+
+class Receiver:
+    """A thread that receives every datagram on a socket and keeps (monotonic time, frame).
+    With `hello_port`, it sends a GCS HEARTBEAT there every second, as a GCS does (a UDP
+    server forgets a peer silent for peer_timeout)."""
+
+    def __init__(self, sock: socket.socket, hello_port: Optional[int] = None):
+        self.sock = sock
+        self.frames: List[Tuple[float, bytes]] = []
+        self._stop = False
+        self._hello_port = hello_port
+        self._next_hello = 0.0
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+        if hello_port:
+            time.sleep(0.2)  # the gateway has learned this peer before anything is sent
+
+    def _run(self):
+        self.sock.settimeout(0.1)
+        while not self._stop:
+            if self._hello_port and time.monotonic() >= self._next_hello:
+                gcs_hello(self.sock, self._hello_port)
+                self._next_hello = time.monotonic() + 1.0
+            try:
+                dg = self.sock.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError:
+                break
+            now = time.monotonic()
+            for f in split_stream(dg):
+                self.frames.append((now, f))
+
+    def wait_quiet(self, quiet: float = 0.5, timeout: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout
+        n = -1
+        while time.monotonic() < deadline:
+            if len(self.frames) == n:
+                return
+            n = len(self.frames)
+            time.sleep(quiet)
+
+    def stop(self) -> List[bytes]:
+        self._stop = True
+        self._t.join(2)
+        return [f for _, f in self.frames]
+
+
+def paced_send(schedule: Sequence[Tuple[float, bytes]], targets: Sequence[Tuple[socket.socket, Tuple[str, int]]],
+               burst_ms: float = 2.0) -> List[float]:
+    """Sends frame i at schedule[i][0] seconds after the start on every target; returns the
+    monotonic time each frame left. Frames due within burst_ms go together (Python's sleep
+    cannot do 1 ms reliably)."""
+    sent: List[float] = []
+    start = time.monotonic()
+    burst = burst_ms / 1000.0
+    i = 0
+    n = len(schedule)
+    while i < n:
+        now = time.monotonic() - start
+        due = schedule[i][0]
+        if due > now + burst:
+            time.sleep(min(due - now - burst / 2, 0.05))
+            continue
+        while i < n and schedule[i][0] <= now + burst:
+            f = schedule[i][1]
+            for s, addr in targets:
+                s.sendto(f, addr)
+            sent.append(time.monotonic())
+            i += 1
+    return sent
+
+
+def gcs_hello(sock: socket.socket, port: int, sysid: int = 255, compid: int = 190) -> bytes:
+    """A GCS heartbeat so the gateway's `gcs` UDP server learns this peer."""
+    hb = FrameMaker(sysid, compid).heartbeat(type_=6)
+    sock.sendto(hb, (HOST, port))
+    return hb
+
+
+def multiset_diff(want: Iterable[bytes], got: Iterable[bytes]) -> Tuple[Counter, Counter]:
+    """(missing, extra): frames expected but not delivered, delivered beyond expected."""
+    w, g = Counter(want), Counter(got)
+    return w - g, g - w
+
+
+def content_key(frame: bytes) -> tuple:
+    """(sysid, compid, msgid, payload): a frame without its sequence byte."""
+    return (tlog.sysid(frame), tlog.compid(frame), tlog.msgid(frame), tlog.payload(frame))
+
+
+def with_seq(frame: bytes, seq: int) -> bytes:
+    """The same MAVLink 2 frame with another sequence byte (CRC recomputed)."""
+    b = bytearray(frame)
+    assert b[0] == 0xFD
+    b[4] = seq & 0xFF
+    n = b[1]
+    crc = tlog.compute_crc(bytes(b), tlog.crc_extras()[tlog.msgid(frame)])
+    b[10 + n] = crc & 0xFF
+    b[11 + n] = crc >> 8
+    return bytes(b)
+
+
+def paced_events(events: Sequence[Tuple[float, int, bytes]],
+                 targets: Sequence[Tuple[socket.socket, Tuple[str, int]]],
+                 burst_ms: float = 2.0) -> List[float]:
+    """Sends each (t, target index, frame) at t seconds after the start (events sorted by t);
+    returns the monotonic time each event was sent."""
+    sent: List[float] = []
+    start = time.monotonic()
+    burst = burst_ms / 1000.0
+    i, n = 0, len(events)
+    while i < n:
+        now = time.monotonic() - start
+        due = events[i][0]
+        if due > now + burst:
+            time.sleep(min(due - now - burst / 2, 0.05))
+            continue
+        while i < n and events[i][0] <= now + burst:
+            _, k, f = events[i]
+            s, addr = targets[k]
+            s.sendto(f, addr)
+            sent.append(time.monotonic())
+            i += 1
+    return sent
+
+
+def timestamp_of(frame: bytes) -> Optional[Tuple[str, int]]:
+    """(field, value) of a frame's time_boot_ms / time_usec, or None when it has none."""
+    from helpers import mav2
+    dec = mav2.MAVLink(None)
+    try:
+        msg = dec.decode(bytearray(frame))
+    except Exception:
+        return None
+    for field in ("time_boot_ms", "time_usec"):
+        if field in msg.get_fieldnames():
+            return field, getattr(msg, field)
+    return None
+
+
+class Ticker:
+    """A thread that sends `frame_fn(k)` every `period` seconds from `sock` to `addr`."""
+
+    def __init__(self, sock: socket.socket, addr, frame_fn, period: float = 1.0):
+        self.sock, self.addr, self.frame_fn, self.period = sock, addr, frame_fn, period
+        self.sent = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.sock.sendto(self.frame_fn(self.sent), self.addr)
+            self.sent += 1
+            self._stop.wait(self.period)
+
+    def stop(self):
+        self._stop.set()
+        self._t.join(2)
