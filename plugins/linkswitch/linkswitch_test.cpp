@@ -21,8 +21,11 @@ using std::chrono::seconds;
 /// A minimal MAVLink v2 frame (header, empty HEARTBEAT-sized payload, dummy CRC): the plugin
 /// reads the fields from mavbond_frame, the bytes only have to exist.
 std::vector<uint8_t> raw_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid) {
-    std::vector<uint8_t> raw = {0xFD, 9, 0, 0, seq, sysid, compid, static_cast<uint8_t>(msgid),
-                                static_cast<uint8_t>(msgid >> 8), static_cast<uint8_t>(msgid >> 16)};
+    std::vector<uint8_t> raw = {0xFD,   9,      0,
+                                0,      seq,    sysid,
+                                compid, static_cast<uint8_t>(msgid),
+                                static_cast<uint8_t>(msgid >> 8),
+                                static_cast<uint8_t>(msgid >> 16)};
     raw.resize(raw.size() + 9 + 2, 0);
     return raw;
 }

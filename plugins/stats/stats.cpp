@@ -413,7 +413,8 @@ void Stats::write_csv(double t) {
         const BondTotals& i = b.interval;
         fprintf(csv_, "%.3f,bond,", t);
         csv_field(csv_, b.name.c_str());
-        fprintf(csv_, ",%llu,%llu,%lld,%.3f,%llu,%llu,%llu,%llu,", static_cast<unsigned long long>(i.frames),
+        fprintf(csv_, ",%llu,%llu,%lld,%.3f,%llu,%llu,%llu,%llu,",
+                static_cast<unsigned long long>(i.frames),
                 static_cast<unsigned long long>(i.bytes), static_cast<long long>(i.lost),
                 loss_fraction(i.received, i.lost) * 100,
                 static_cast<unsigned long long>(i.delivered),

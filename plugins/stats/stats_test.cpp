@@ -25,8 +25,11 @@ using std::chrono::seconds;
 
 /// A minimal MAVLink v2 frame: header, 9 payload bytes, dummy CRC (21 bytes on the wire).
 std::vector<uint8_t> raw_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid) {
-    std::vector<uint8_t> raw = {0xFD, 9, 0, 0, seq, sysid, compid, static_cast<uint8_t>(msgid),
-                                static_cast<uint8_t>(msgid >> 8), static_cast<uint8_t>(msgid >> 16)};
+    std::vector<uint8_t> raw = {0xFD,   9,      0,
+                                0,      seq,    sysid,
+                                compid, static_cast<uint8_t>(msgid),
+                                static_cast<uint8_t>(msgid >> 8),
+                                static_cast<uint8_t>(msgid >> 16)};
     raw.resize(raw.size() + 9 + 2, 0);
     return raw;
 }
@@ -276,7 +279,8 @@ TEST_F(StatsTest, BondFiguresComeFromTheNotes) {
         if (i == 3)
             send("lte", 3);
         else
-            send("lte", static_cast<uint8_t>(i), 1, 1, kDup, (i % 2 ? 30 : 10) * 1'000'000, "radio");
+            send("lte", static_cast<uint8_t>(i), 1, 1, kDup, (i % 2 ? 30 : 10) * 1'000'000,
+                 "radio");
     }
     send("lte", 10, 1, 1, kStale);
     // A frame from a source the bond lost in the delivered stream: 11 never arrives.
