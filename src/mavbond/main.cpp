@@ -262,6 +262,9 @@ int run_daemon(const Options& opts) {
     log_notice("mavbond %s running with %zu endpoints from %s", MAVBOND_VERSION,
                endpoints->size(), opts.config_path.c_str());
     int code = ev.run();
+    // From here endpoints go away because the daemon stops, not because links fail: the
+    // filters must not take it for an outage (a link switch logged at every shutdown).
+    router.set_filter(nullptr);
     dump_counters();
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
