@@ -1,0 +1,209 @@
+#!/usr/bin/env bash
+# Installs the mavbond .deb for this machine's architecture (as root), checks every file lands
+# where it should, runs the installed daemon with the installed config and with the installed
+# plugins, edits the conffile, reinstalls (the edit survives) and purges (everything goes).
+#
+#   tests/package/install-test.sh build-deb/mavbond_VERSION_amd64.deb
+#
+# It leaves the machine as it found it: the package is purged on any exit. systemd is not
+# needed (postinst only enables the unit when systemd is not running); the unit is checked
+# with systemd-analyze verify and security, and the daemon is run the way the unit runs it:
+# --check-config first, then as an unprivileged user in the dialout group. Exit 0: all passed.
+set -euo pipefail
+
+DEB=$(realpath "${1:?usage: install-test.sh PACKAGE.deb}")
+HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+MULTIARCH=$(dpkg-architecture -qDEB_HOST_MULTIARCH)
+PLUGINDIR=/usr/lib/$MULTIARCH/mavbond/plugins
+CONF=/etc/mavbond/mavbond.yaml
+UNIT=/lib/systemd/system/mavbond.service
+RUN_AS=(setpriv --reuid=nobody --regid=nogroup --groups=dialout --inh-caps=-all --no-new-privs)
+APT=(apt-get -q -y --no-install-recommends -o DPkg::Lock::Timeout=600)
+export DEBIAN_FRONTEND=noninteractive
+WORK=$(mktemp -d /tmp/mavbond-install-test.XXXXXX)
+chmod 755 "$WORK"
+DAEMON_PID=
+PASSED=0
+FAILED=0
+
+[ "$(id -u)" -eq 0 ] || { echo "install-test: needs root (it installs the package)" >&2; exit 1; }
+[ "$(dpkg-deb -f "$DEB" Architecture)" = "$(dpkg --print-architecture)" ] ||
+    { echo "install-test: $DEB is not for $(dpkg --print-architecture)" >&2; exit 1; }
+
+say() { printf -- '--- %s\n' "$*"; }
+ok() { printf 'ok    %s\n' "$*"; PASSED=$((PASSED + 1)); }
+fail() { printf 'FAIL  %s\n' "$*"; FAILED=$((FAILED + 1)); }
+check() {   # check "what" command...: one line, and the command's output when it fails
+    local what=$1; shift
+    if "$@" >"$WORK/out" 2>&1; then ok "$what"; else fail "$what"; sed 's/^/      /' "$WORK/out"; fi
+}
+show() {    # show "what" command...: the same, with the command's output either way
+    local what=$1; shift
+    if "$@" >"$WORK/out" 2>&1; then ok "$what"; else fail "$what"; fi
+    sed 's/^/      /' "$WORK/out"
+}
+unexpected_files() {   # files (not directories) of the package outside its own places
+    dpkg -L mavbond | while read -r f; do [ -d "$f" ] || echo "$f"; done |
+        grep -v -E "^/(etc/mavbond/|lib/systemd/system/mavbond\.service$|usr/bin/mavbond(ctl)?$|usr/lib/$MULTIARCH/mavbond/plugins/[a-z]+\.so$|usr/share/doc/mavbond/|usr/share/man/man[158]/mavbond)" || true
+}
+verify_unit() {   # systemd-analyze verify prints nothing for a clean unit
+    local out
+    out=$(systemd-analyze verify "$UNIT" 2>&1)
+    echo "$out"
+    [ -z "$out" ]
+}
+list_plugins() {
+    mavbondctl status --json | python3 -c 'import json, sys
+names = sorted(f["plugin"] for f in json.load(sys.stdin)["filters"])
+print(*names)
+sys.exit(names != ["dedup", "linkswitch", "stats"])'
+}
+counters_ok() {
+    mavbondctl status --json | python3 -c 'import json, sys
+e = {x["name"]: x for x in json.load(sys.stdin)["endpoints"]}
+print({n: (x["rx_frames"], x["tx_frames"]) for n, x in e.items()})
+sys.exit(not (e["gcs"]["rx_frames"] >= 2 and e["autopilot"]["rx_frames"] >= 1))'
+}
+installed() { dpkg-query -W -f='${Status}' mavbond 2>/dev/null | grep -q 'install ok installed'; }
+known() { dpkg-query -W -f='${Status}' mavbond >/dev/null 2>&1 &&
+          ! dpkg-query -W -f='${Status}' mavbond | grep -q 'not-installed'; }
+
+stop_daemon() {
+    if [ -n "$DAEMON_PID" ] && kill -0 "$DAEMON_PID" 2>/dev/null; then
+        kill -TERM "$DAEMON_PID"
+        for _ in $(seq 50); do kill -0 "$DAEMON_PID" 2>/dev/null || break; sleep 0.1; done
+        kill -KILL "$DAEMON_PID" 2>/dev/null || true
+    fi
+    if [ -n "$DAEMON_PID" ]; then
+        wait "$DAEMON_PID" 2>/dev/null && DAEMON_RC=0 || DAEMON_RC=$?
+    fi
+    DAEMON_PID=
+}
+cleanup() {
+    stop_daemon
+    if known; then "${APT[@]}" purge mavbond >/dev/null 2>&1 || dpkg --purge mavbond >/dev/null 2>&1 || true; fi
+    rm -rf /run/mavbond "$WORK"
+}
+trap cleanup EXIT
+
+# Starts the installed daemon the way the unit does, waits until it logs "running".
+start_daemon() {   # start_daemon CONFIG
+    "${RUN_AS[@]}" /usr/bin/mavbond --check-config -c "$1" >"$WORK/check.out" 2>&1 ||
+        { fail "mavbond --check-config -c $1"; cat "$WORK/check.out"; return 1; }
+    ok "mavbond --check-config -c $1: $(cat "$WORK/check.out")"
+    "${RUN_AS[@]}" /usr/bin/mavbond -c "$1" >"$WORK/daemon.log" 2>&1 &
+    DAEMON_PID=$!
+    for _ in $(seq 100); do
+        grep -q "running with" "$WORK/daemon.log" && { ok "daemon running: $(grep -m1 'running with' "$WORK/daemon.log")"; return 0; }
+        kill -0 "$DAEMON_PID" 2>/dev/null || break
+        sleep 0.1
+    done
+    fail "daemon did not start with $1"; sed 's/^/      /' "$WORK/daemon.log"; stop_daemon; return 1
+}
+port_free() { ! ss -Hlun "sport = :$1" | grep -q .; }
+
+# ----------------------------------------------------------------------------------------
+if known; then
+    echo "install-test: mavbond is already installed here; purge it first (apt-get purge mavbond)" >&2
+    exit 1
+fi
+"${APT[@]}" install procps iproute2 util-linux man-db >/dev/null 2>&1 || true
+
+say "install $(basename "$DEB")"
+check "apt-get install ./$(basename "$DEB")" "${APT[@]}" install "$DEB"
+installed || { echo "install-test: the package did not install" >&2; exit 1; }
+
+say "files"
+for f in /usr/bin/mavbond /usr/bin/mavbondctl; do
+    check "$f is an executable" test -x "$f"
+done
+for p in dedup linkswitch stats; do
+    check "plugin $PLUGINDIR/$p.so" test -f "$PLUGINDIR/$p.so"
+done
+check "$CONF is a conffile" sh -c "dpkg-query -W -f='\${Conffiles}' mavbond | grep -q ' $CONF '"
+for f in $UNIT /usr/share/doc/mavbond/examples/air-side.yaml \
+         /usr/share/doc/mavbond/examples/ground-side.yaml /usr/share/doc/mavbond/copyright \
+         /usr/share/man/man8/mavbond.8.gz /usr/share/man/man1/mavbondctl.1.gz \
+         /usr/share/man/man5/mavbond.yaml.5.gz; do
+    check "$f" test -f "$f"
+done
+check "man -w mavbond.yaml" man -w 5 mavbond.yaml
+check "no file outside the expected places" test -z "$(unexpected_files)"
+check "the shipped config opens no serial port" sh -c "! grep -E '^[^#]*type: *uart' $CONF"
+check "postinst enabled the unit" test -L /etc/systemd/system/multi-user.target.wants/mavbond.service
+check "mavbond --version" /usr/bin/mavbond --version
+
+say "systemd unit"
+show "systemd-analyze verify $UNIT (no output)" verify_unit
+exposure=$(systemd-analyze security --offline=yes "$UNIT" 2>/dev/null | sed -n 's/.*Overall exposure level for mavbond.service: \([0-9.]*\).*/\1/p')
+check "systemd-analyze security: exposure $exposure (<= 2.0)" awk -v e="$exposure" 'BEGIN { exit !(e != "" && e <= 2.0) }'
+for k in 'DynamicUser=yes' 'SupplementaryGroups=dialout' "ExecStartPre=/usr/bin/mavbond --check-config -c $CONF" \
+         'Restart=on-failure' 'RuntimeDirectory=mavbond' 'NoNewPrivileges=yes' 'ProtectSystem=strict' \
+         'ProtectHome=yes' 'PrivateTmp=yes' 'RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6'; do
+    check "unit: $k" grep -qxF "$k" "$UNIT"
+done
+
+say "installed daemon, installed config ($CONF)"
+mkdir -p /run/mavbond && chown nobody:nogroup /run/mavbond   # what RuntimeDirectory= does
+if port_free 14550 && port_free 14540; then
+    if start_daemon "$CONF"; then
+        show "route a frame between the shipped endpoints (UDP 14550 <-> 14540)" \
+            python3 "$HERE/route_check.py" pair 14550 14540
+        show "mavbondctl status" mavbondctl status
+        show "mavbondctl status --json: the frames were counted" counters_ok
+        stop_daemon
+        check "clean stop on SIGTERM (exit $DAEMON_RC)" test "$DAEMON_RC" -eq 0
+        check "status socket removed at exit" test ! -e /run/mavbond/status.sock
+    fi
+else
+    fail "UDP 14550 or 14540 is in use on this machine: cannot run the shipped config as is"
+fi
+
+say "installed daemon, installed plugins (default plugin_dir)"
+ports=$(python3 -c 'import socket
+ss=[socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(3)]
+[s.bind(("127.0.0.1", 0)) for s in ss]; print(*[s.getsockname()[1] for s in ss])')
+read -r P_GCS P_R1 P_R2 <<<"$ports"
+cat >"$WORK/bond.yaml" <<EOF
+status_socket: /run/mavbond/status.sock
+endpoints:
+  - {name: gcs, type: udp, mode: server, address: 127.0.0.1:$P_GCS}
+  - {name: radio1, type: udp, mode: server, address: 127.0.0.1:$P_R1, bond: air}
+  - {name: radio2, type: udp, mode: server, address: 127.0.0.1:$P_R2, bond: air}
+bonds:
+  - {name: air, tx: active}
+filters:
+  - {plugin: linkswitch, bonds: [air]}
+  - {plugin: dedup, bonds: [air]}
+  - {plugin: stats, interval: 1s}
+EOF
+chmod 644 "$WORK/bond.yaml"
+if start_daemon "$WORK/bond.yaml"; then
+    show "plugins loaded from $PLUGINDIR" list_plugins
+    show "route frames through dedup/linkswitch/stats" python3 "$HERE/route_check.py" bond "$P_GCS" "$P_R1" "$P_R2"
+    show "mavbondctl status" mavbondctl status
+    stop_daemon
+    check "clean stop (exit $DAEMON_RC)" test "$DAEMON_RC" -eq 0
+fi
+for ex in /usr/share/doc/mavbond/examples/*.yaml; do
+    check "mavbond --check-config $ex (its filters load from $PLUGINDIR)" "${RUN_AS[@]}" /usr/bin/mavbond --check-config -c "$ex"
+done
+
+say "conffile: edit, reinstall, purge"
+sed -i 's/^log_level: info$/log_level: debug   # edited by install-test/' "$CONF"
+check "conffile edited" grep -q 'edited by install-test' "$CONF"
+check "reinstall (apt-get install --reinstall)" "${APT[@]}" install --reinstall "$DEB"
+check "the edit survives the reinstall" grep -q 'edited by install-test' "$CONF"
+check "no .dpkg-new/.dpkg-dist left" sh -c "! ls /etc/mavbond/*.dpkg-* 2>/dev/null | grep ."
+check "dpkg -i over it (non-interactive)" dpkg -i --force-confdef --force-confold "$DEB"
+check "the edit survives dpkg -i" grep -q 'edited by install-test' "$CONF"
+check "mavbond --check-config on the edited conffile" /usr/bin/mavbond --check-config
+check "apt-get purge mavbond" "${APT[@]}" purge mavbond
+check "package gone" sh -c "! dpkg-query -W -f='\${Status}' mavbond 2>/dev/null | grep -q 'install ok installed'"
+check "/etc/mavbond gone" test ! -e /etc/mavbond
+check "/usr/bin/mavbond gone" test ! -e /usr/bin/mavbond
+check "$PLUGINDIR gone" test ! -e "$PLUGINDIR"
+check "unit and its enablement gone" sh -c "test ! -e $UNIT && test ! -L /etc/systemd/system/multi-user.target.wants/mavbond.service"
+
+echo "install-test: $PASSED passed, $FAILED failed"
+[ "$FAILED" -eq 0 ]
