@@ -308,14 +308,16 @@ def test_one_link_down_for_15s_dedup_and_linkswitch(lab):
     n = len(sched)
     frames = [f for _, f in sched]
     socks = {k: lab.sock() for k in emus}
-    # Frame 0 goes on the A links 0.3 s before everything else, so link A is heard first
-    # and is the active link from the start (linkswitch takes the first link it hears).
+    # Frame 0 goes on link A of the linkswitch gateway 0.3 s before everything else, so
+    # link A is heard first there and is the active link from the start (linkswitch takes the
+    # first link it hears). The dedup gateway gets both copies together.
     keys = list(emus)
-    events = [(0.0, keys.index("a1"), frames[0]), (0.0, keys.index("a2"), frames[0])]
-    events += [(0.3, keys.index("b1"), frames[0]), (0.3, keys.index("b2"), frames[0])]
+    events = [(0.0, keys.index("a2"), frames[0])]
+    events += [(0.3, keys.index(k), frames[0]) for k in ("b2", "a1", "b1")]
     events += [(t + 0.3, keys.index(k), f) for t, f in sched[1:] for k in keys]
     times = paced_events(events, [(socks[k], (HOST, emus[k].listen_port)) for k in keys])
-    sent = [times[1]] + times[4 + keys.index("a2")::4]  # when each frame left for a2
+    sent = [times[0]] + times[4 + keys.index("a2")::4]  # when each frame left for a2
+    assert len(sent) == n
     rx_dd.wait_quiet(0.5)
     rx_ls.wait_quiet(0.5)
     got_dd = [(t, f) for t, f in rx_dd.frames if tlog.sysid(f) == 1]
