@@ -40,13 +40,17 @@ constexpr uint32_t kMaxMembers = 8;
 constexpr int kInstances = 8;
 // A copy fits an instance when its skew is within this of the learned offset, or 4 mean
 // absolute deviations when the pair's jitter is larger. 25 ms covers a UART's byte timing
-// and a receive batch; the real jitter of a link takes over once learned.
+// and a receive batch; the real jitter of a link takes over once learned. The cap keeps a
+// confused model from swallowing everything: a copy further off than that passes (a
+// duplicate delivered, never a good frame dropped).
 constexpr int64_t kMinTolerance = 25 * static_cast<int64_t>(kMs);
+constexpr int64_t kMaxTolerance = 250 * static_cast<int64_t>(kMs);
 constexpr int64_t kToleranceDeviations = 4;
-// Samples before an offset is trusted; the EWMA gain is 1/16 after a running mean of the
-// first 16 samples (about 1 s of unique frames at telemetry rates).
-constexpr uint32_t kMinSamples = 4;
-constexpr uint32_t kEwmaSamples = 16;
+// The offset starts as the median of the first samples, so a few wrong ones (a link that
+// lost the first instance of a recurring frame delivers the next as "the" copy) cannot set
+// it; after that an EWMA with gain 1/16 follows it.
+constexpr uint32_t kMinSamples = 8;
+constexpr int64_t kEwmaGain = 16;
 // A timestamp going back by more than this is an autopilot reboot (time_boot_ms restarts),
 // not a late copy: a late copy lags by the links' skew, which the window is sized to cover.
 constexpr uint64_t kMinRebootJump = 2 * kSecond;
@@ -85,6 +89,7 @@ struct PairModel {
     int64_t offset_ns = 0;
     int64_t mad_ns = 0;  // mean absolute deviation of the samples from the offset
     uint32_t samples = 0;
+    int64_t first[kMinSamples] = {};  // the samples before the offset is trusted
 };
 
 struct Member {
@@ -175,7 +180,7 @@ private:
         return from < to ? p.offset_ns : -p.offset_ns;
     }
     static int64_t tolerance(const PairModel& p) {
-        return std::max(kMinTolerance, kToleranceDeviations * p.mad_ns);
+        return std::clamp(kToleranceDeviations * p.mad_ns, kMinTolerance, kMaxTolerance);
     }
     void learn(PairModel& p, int64_t sample);
 
@@ -458,24 +463,28 @@ void Dedup::add_instance(uint32_t e, uint32_t member, uint32_t link_id, uint64_t
 }
 
 void Dedup::learn(PairModel& p, int64_t sample) {
-    if (p.samples == 0) {
-        p.offset_ns = sample;
-        p.mad_ns = 0;
-        p.samples = 1;
+    if (p.samples < kMinSamples) {
+        p.first[p.samples++] = sample;
+        if (p.samples == kMinSamples) {
+            int64_t sorted[kMinSamples];
+            std::copy(p.first, p.first + kMinSamples, sorted);
+            std::sort(sorted, sorted + kMinSamples);
+            p.offset_ns = sorted[kMinSamples / 2];
+            for (int64_t& x : sorted)
+                x = x < p.offset_ns ? p.offset_ns - x : x - p.offset_ns;
+            std::sort(sorted, sorted + kMinSamples);
+            p.mad_ns = sorted[kMinSamples / 2];
+        }
         return;
     }
-    int64_t residual = sample - p.offset_ns;
-    if (p.samples >= kMinSamples) {
-        // Clamp outliers (a rare legitimate repeat read as a copy) so one cannot move the
-        // offset far; a real change of a link's latency still gets followed, because clamped
-        // residuals raise the deviation and so the tolerance, within tens of samples.
-        int64_t tol = tolerance(p);
-        residual = std::clamp(residual, -tol, tol);
-    }
-    int64_t gain = std::min(p.samples + 1, kEwmaSamples);
-    p.offset_ns += residual / gain;
+    // Clamp outliers (a legitimate repeat read as a copy) so one cannot move the offset far;
+    // a real change of a link's latency is still followed, because clamped residuals raise
+    // the deviation and so the tolerance, within tens of samples.
+    int64_t tol = tolerance(p);
+    int64_t residual = std::clamp(sample - p.offset_ns, -tol, tol);
+    p.offset_ns += residual / kEwmaGain;
     int64_t abs_res = residual < 0 ? -residual : residual;
-    p.mad_ns += (abs_res - p.mad_ns) / gain;
+    p.mad_ns += (abs_res - p.mad_ns) / kEwmaGain;
     if (p.samples < UINT32_MAX)
         p.samples++;
 }
@@ -485,13 +494,14 @@ Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key 
     uint32_t e = find(bond, key);
     if (e != kNone) {
         const Entry& en = entries_[e];
-        int best = -1, oldest = -1;
+        int best = -1, oldest = -1, unseen = 0;
         int64_t best_err = INT64_MAX;
         uint64_t oldest_t0 = UINT64_MAX;
         for (int s = 0; s < en.count; s++) {
             const Record& r = ring_[en.rec[s]];
             if (r.seen & (1u << member))
                 continue;  // this link had that instance: this frame is a later one
+            unseen++;
             int64_t skew = static_cast<int64_t>(t - r.t0);
             const PairModel& p = pair(bond, r.first_member, member);
             if (p.samples >= kMinSamples) {
@@ -508,9 +518,10 @@ Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key 
             }
         }
         int chosen = best >= 0 ? best : oldest;
-        if (en.count == 1 && (best >= 0 || oldest >= 0)) {
+        if (en.count == 1 && unseen == 1) {
             // One instance in the window and this link has not had it: whichever way the
-            // decision goes, the arrival gap is a clean sample of the pair's offset.
+            // decision goes (even when it does not fit: the latency may have changed), the
+            // arrival gap is a clean sample of the pair's offset.
             const Record& r = ring_[en.rec[0]];
             int64_t skew = static_cast<int64_t>(t - r.t0);
             learn(pair(bond, r.first_member, member), r.first_member < member ? skew : -skew);
