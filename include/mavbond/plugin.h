@@ -55,7 +55,8 @@ typedef struct mavbond_frame {
     const uint8_t *payload;   /* the payload as on the wire (v2: possibly truncated) */
     uint32_t payload_len;
     int16_t timestamp_offset; /* wire offset of time_boot_ms / time_usec in the payload, -1: none */
-    uint8_t timestamp_size;   /* 4 (time_boot_ms, ms) or 8 (time_usec, us); 0: none */
+    uint8_t timestamp_size;   /* its size in bytes, 4 or 8; 0: none */
+    uint8_t timestamp_us;     /* 1: microseconds (time_usec), 0: milliseconds (time_boot_ms) */
     uint64_t rx_time_ns;      /* CLOCK_MONOTONIC, read once per receive batch */
 } mavbond_frame;
 

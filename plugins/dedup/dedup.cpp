@@ -554,7 +554,7 @@ bool Dedup::stale(uint32_t bond, const mavbond_frame* f) {
     uint32_t off = static_cast<uint32_t>(f->timestamp_offset);
     uint32_t avail = f->payload_len > off ? f->payload_len - off : 0;
     uint64_t raw = read_le(f->payload + std::min(off, f->payload_len), avail, f->timestamp_size);
-    uint64_t ts_ns = f->timestamp_size == 4 ? raw * kMs : raw * 1000;
+    uint64_t ts_ns = f->timestamp_us ? raw * 1000 : raw * kMs;
     uint64_t k = uint64_t{bond} << 48 | uint64_t{f->sysid} << 40 | uint64_t{f->compid} << 32 |
                  (f->msgid & 0xffffff);
     uint32_t i = static_cast<uint32_t>((k * 0x9e3779b97f4a7c15ull) >> 52) & (kStreams - 1);

@@ -158,6 +158,7 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
     f.payload_len = static_cast<uint32_t>(frame.payload.size());
     f.timestamp_offset = frame.info ? frame.info->timestamp_ofs : -1;
     f.timestamp_size = frame.info ? frame.info->timestamp_size : 0;
+    f.timestamp_us = frame.info ? frame.info->timestamp_us : 0;
     f.rx_time_ns = to_ns(rx_time);
     return f;
 }

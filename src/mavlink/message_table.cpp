@@ -63,18 +63,23 @@ static_assert([] {
 struct Timestamp {
     int16_t ofs = -1;
     uint8_t size = 0;
+    bool us = false;
 };
 
-// The wire offset of a scalar time_boot_ms (uint32) or time_usec (uint64) field.
+// The wire offset of a scalar time_boot_ms (uint32, ms) or time_usec (uint64, or uint32 as in
+// SERVO_OUTPUT_RAW, us) field. Only samples of one message are ever compared, so a 32-bit
+// microsecond clock is as good an order as any (its wrap every 71 minutes reads as a restart).
 constexpr Timestamp find_timestamp(const mavlink_message_info_t& info) {
     for (unsigned f = 0; f < info.num_fields; ++f) {
         const mavlink_field_info_t& field = info.fields[f];
         if (field.array_length != 0)
             continue;
         if (field.type == MAVLINK_TYPE_UINT32_T && str_equal(field.name, "time_boot_ms"))
-            return {static_cast<int16_t>(field.wire_offset), 4};
-        if (field.type == MAVLINK_TYPE_UINT64_T && str_equal(field.name, "time_usec"))
-            return {static_cast<int16_t>(field.wire_offset), 8};
+            return {static_cast<int16_t>(field.wire_offset), 4, false};
+        if (str_equal(field.name, "time_usec") &&
+            (field.type == MAVLINK_TYPE_UINT64_T || field.type == MAVLINK_TYPE_UINT32_T))
+            return {static_cast<int16_t>(field.wire_offset),
+                    static_cast<uint8_t>(field.type == MAVLINK_TYPE_UINT64_T ? 8 : 4), true};
     }
     return {};
 }
@@ -112,6 +117,7 @@ constexpr Tables build_tables() {
             .has_target_component = (e.flags & 2) != 0,
             .timestamp_ofs = ts.ofs,
             .timestamp_size = ts.size,
+            .timestamp_us = ts.us,
             .name = info->name,
         };
         if (e.msgid < kDirectIds)

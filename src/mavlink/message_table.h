@@ -18,7 +18,8 @@ struct MessageInfo {
     bool has_target_system;
     bool has_target_component;
     int16_t timestamp_ofs;          // wire offset of time_boot_ms / time_usec, -1 if none
-    uint8_t timestamp_size;         // 4 (time_boot_ms) or 8 (time_usec); 0 if none
+    uint8_t timestamp_size;         // its size in bytes (4 or 8); 0 if none
+    bool timestamp_us;              // time_usec (microseconds), else time_boot_ms (milliseconds)
     const char* name;
 };
 

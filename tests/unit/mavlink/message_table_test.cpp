@@ -32,6 +32,7 @@ TEST(MessageTable, AttitudeTimestamp) {
     EXPECT_EQ(att->crc_extra, 39);
     EXPECT_EQ(att->timestamp_ofs, 0);
     EXPECT_EQ(att->timestamp_size, 4);
+    EXPECT_FALSE(att->timestamp_us);
     EXPECT_EQ(find_message_id("ATTITUDE"), 30u);
 }
 
@@ -40,10 +41,13 @@ TEST(MessageTable, TimeUsec) {
     ASSERT_NE(gps, nullptr);
     EXPECT_EQ(gps->timestamp_ofs, 0);
     EXPECT_EQ(gps->timestamp_size, 8);
-    // SERVO_OUTPUT_RAW's time_usec is a uint32: not a timestamp we order by.
+    // SERVO_OUTPUT_RAW's time_usec is a uint32 microsecond clock: still a sample order.
     const MessageInfo* servo = find_message(36);
     ASSERT_NE(servo, nullptr);
-    EXPECT_EQ(servo->timestamp_ofs, -1);
+    EXPECT_EQ(servo->timestamp_ofs, 0);
+    EXPECT_EQ(servo->timestamp_size, 4);
+    EXPECT_TRUE(servo->timestamp_us);
+    EXPECT_TRUE(gps->timestamp_us);
     // SYSTEM_TIME: time_unix_usec (uint64) comes first on the wire, time_boot_ms at 8.
     const MessageInfo* st = find_message(2);
     ASSERT_NE(st, nullptr);
