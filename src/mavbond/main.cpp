@@ -241,11 +241,11 @@ int run_daemon(const Options& opts) {
         auto st = StatusSocket::open(config->status_socket, ev, [&] {
             return status_document(*endpoints, router, *chain.value(), started, ev.now());
         });
-        if (!st) {
-            log_error("%s", st.error().message.c_str());
-            return kExitOsError;
-        }
-        status = std::move(st.value());
+        // Telemetry matters more than the status: without its socket the daemon still routes.
+        if (st)
+            status = std::move(st.value());
+        else
+            log_warning("%s: mavbondctl cannot reach this daemon", st.error().message.c_str());
     }
     ProblemReport report(*endpoints);
     auto report_timer = ev.schedule(config->report_interval, [&] {

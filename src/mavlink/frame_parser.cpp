@@ -9,6 +9,7 @@
 #include "mavlink/frame_parser.h"
 
 #include <algorithm>
+#include <array>
 #include <cstring>
 
 #include "mavlink/message_table.h"
@@ -50,6 +51,35 @@ inline bool crc_matches(const uint8_t* p, size_t header_len, size_t payload_len,
     return crc == static_cast<uint16_t>(ck[0] | (ck[1] << 8));
 }
 
+/// Whether an unknown-id frame is a known frame with one bit of its id flipped in transit: the
+/// CRC covers the id, so it verifies once the bit is put back. Such a frame must not be
+/// forwarded as an unverifiable unknown (on a bond, its good copy comes from another link).
+bool damaged_known_frame(const uint8_t* p, size_t header_len, size_t payload_len, uint32_t msgid,
+                         unsigned id_bits) {
+    std::array<uint8_t, kHeaderLenV2> header;
+    std::memcpy(header.data(), p, header_len);
+    const uint8_t* ck = p + header_len + payload_len;
+    const auto sent_crc = static_cast<uint16_t>(ck[0] | (ck[1] << 8));
+    for (unsigned bit = 0; bit < id_bits; ++bit) {
+        const uint32_t id = msgid ^ (1u << bit);
+        const MessageInfo* info = find_message(id);
+        if (info == nullptr || payload_len > info->max_len)
+            continue;
+        if (header_len == kHeaderLenV2) {
+            header[7] = static_cast<uint8_t>(id);
+            header[8] = static_cast<uint8_t>(id >> 8);
+            header[9] = static_cast<uint8_t>(id >> 16);
+        } else {
+            header[5] = static_cast<uint8_t>(id);
+        }
+        uint16_t crc = crc_x25(std::span<const uint8_t>(header.data() + 1, header_len - 1));
+        crc = crc_x25(std::span<const uint8_t>(p + header_len, payload_len), crc);
+        if (crc_x25_byte(info->crc_extra, crc) == sent_crc)
+            return true;
+    }
+    return false;
+}
+
 /// Judges the candidate frame starting at p (p[0] is a start byte), `avail` bytes buffered.
 Candidate examine(const uint8_t* p, size_t avail) {
     if (p[0] == kMagicV2) {
@@ -67,7 +97,9 @@ Candidate examine(const uint8_t* p, size_t avail) {
         if (avail < len)
             return {Verdict::NeedMore, len, info};
         if (info == nullptr)
-            return {Verdict::Unknown, len, nullptr};
+            return {damaged_known_frame(p, kHeaderLenV2, payload_len, msgid, 24) ? Verdict::BadCrc
+                                                                                : Verdict::Unknown,
+                    len, nullptr};
         if (!crc_matches(p, kHeaderLenV2, payload_len, info->crc_extra))
             return {Verdict::BadCrc, len, info};
         return {Verdict::Good, len, info};
@@ -83,7 +115,9 @@ Candidate examine(const uint8_t* p, size_t avail) {
     if (avail < len)
         return {Verdict::NeedMore, len, info};
     if (info == nullptr)
-        return {Verdict::Unknown, len, nullptr};
+        return {damaged_known_frame(p, kHeaderLenV1, payload_len, p[5], 8) ? Verdict::BadCrc
+                                                                          : Verdict::Unknown,
+                len, nullptr};
     if (!crc_matches(p, kHeaderLenV1, payload_len, info->crc_extra))
         return {Verdict::BadCrc, len, info};
     return {Verdict::Good, len, info};

@@ -11,7 +11,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections import Counter
@@ -29,27 +28,13 @@ import tlog  # noqa: E402
 
 # --- plugins ------------------------------------------------------------------------------
 
-def plugin_dir_for(binary: str, workdir: Optional[Path] = None) -> str:
-    """The directory to pass as --plugin-dir for a mavbond binary of a build tree: where
-    dedup.so lies under <build>/plugins. When the plugins lie in one folder each
-    (<build>/plugins/<name>/<name>.so), a folder of symlinks to all of them is made."""
-    build = Path(binary).resolve().parent.parent  # <build>/src/mavbond -> <build>
-    root = build / "plugins"
-    found = sorted(p for p in root.rglob("*.so") if p.is_file()) if root.is_dir() else []
-    if not found:
-        raise FileNotFoundError(f"no plugin .so under {root} (build the plugins)")
-    dirs = {p.parent for p in found}
-    dedup = [p for p in found if p.name == "dedup.so"]
-    if len(dirs) == 1:
-        return str(found[0].parent)
-    if dedup and all(p.parent == dedup[0].parent for p in found):
-        return str(dedup[0].parent)
-    out = Path(tempfile.mkdtemp(prefix="mavbond-plugins-", dir=workdir))
-    for p in found:
-        link = out / p.name
-        if not link.exists():
-            link.symlink_to(p)
-    return str(out)
+def plugin_dir_for(binary: str) -> str:
+    """The directory to pass as --plugin-dir for a mavbond binary of a build tree:
+    <build>/plugins, where the build puts every NAME.so (the installed layout)."""
+    root = Path(binary).resolve().parent.parent / "plugins"  # <build>/src/mavbond -> <build>
+    if not (root / "dedup.so").is_file():
+        raise FileNotFoundError(f"no plugins in {root} (build them: ninja -C <build>)")
+    return str(root)
 
 
 # --- config -------------------------------------------------------------------------------

@@ -19,6 +19,13 @@ def mavbond_bin() -> str:
     return path
 
 
+@pytest.fixture(scope="session")
+def plugin_dir(mavbond_bin) -> str:
+    """The build's plugin directory (<build>/plugins), for --plugin-dir."""
+    from bonding_helpers import plugin_dir_for
+    return plugin_dir_for(mavbond_bin)
+
+
 @pytest.fixture
 def start_daemon(mavbond_bin, tmp_path):
     """start_daemon(endpoints, name="mavbond", wait_for=..., **top_level_keys) -> Daemon.

@@ -20,17 +20,9 @@ import pytest
 
 from helpers import HOST, FrameMaker, free_port, udp_client, udp_server
 from bonding_helpers import (Emu, Gateway, Receiver, content_key, gcs_hello, multiset_diff,
-                             paced_events, paced_send, plugin_dir_for, timestamp_of, tlog,
+                             paced_events, paced_send, timestamp_of, tlog,
                              udp_sock, with_seq, Ticker)
 from synth import ardupilot_stream
-
-
-@pytest.fixture
-def plugin_dir(mavbond_bin, tmp_path):
-    try:
-        return plugin_dir_for(mavbond_bin, tmp_path)
-    except FileNotFoundError as e:
-        pytest.fail(str(e), pytrace=False)
 
 
 @pytest.fixture

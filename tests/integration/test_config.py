@@ -16,9 +16,10 @@ SHIPPED = [REPO / "conf" / "mavbond.yaml", *sorted((REPO / "conf" / "examples").
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: str(p.relative_to(REPO)))
-def test_check_config_shipped_files(mavbond_bin, path):
-    r = subprocess.run([mavbond_bin, "--check-config", "-c", str(path)], capture_output=True,
-                       text=True, timeout=10)
+def test_check_config_shipped_files(mavbond_bin, plugin_dir, path):
+    # The examples name the plugins: they are loaded (and their options checked) too.
+    r = subprocess.run([mavbond_bin, "--check-config", "-c", str(path), "--plugin-dir", plugin_dir],
+                       capture_output=True, text=True, timeout=10)
     print(f"\n{path.name}: exit {r.returncode}: {r.stdout.strip()} {r.stderr.strip()}")
     assert r.returncode == 0, r.stderr
 

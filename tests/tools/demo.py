@@ -251,25 +251,12 @@ def run(args, source, frames, daemon, log_path, p_vehicle, p_gcs, p_tcp) -> int:
 
 # --- the bonding demo -----------------------------------------------------------------------
 
-def plugin_dir_for(binary: str, workdir: str) -> str:
-    """--plugin-dir for a build tree's binary (<build>/src/mavbond): the folder under
-    <build>/plugins holding dedup.so, or a folder of symlinks when each plugin has its own."""
+def plugin_dir_for(binary: str) -> str:
+    """--plugin-dir for a build tree's binary (<build>/src/mavbond): <build>/plugins, where the
+    build puts every NAME.so; "" for an installed mavbond (its compiled-in plugin_dir)."""
     build = os.path.dirname(os.path.dirname(os.path.abspath(binary)))
-    found = []
-    for d, _, files in os.walk(os.path.join(build, "plugins")):
-        found += [os.path.join(d, f) for f in files if f.endswith(".so")]
-    if not found:
-        return ""  # an installed mavbond: its compiled-in plugin_dir
-    dirs = {os.path.dirname(p) for p in found}
-    if len(dirs) == 1:
-        return dirs.pop()
-    out = os.path.join(workdir, "plugins")
-    os.makedirs(out, exist_ok=True)
-    for p in found:
-        link = os.path.join(out, os.path.basename(p))
-        if not os.path.exists(link):
-            os.symlink(p, link)
-    return out
+    plugins = os.path.join(build, "plugins")
+    return plugins if os.path.isfile(os.path.join(plugins, "dedup.so")) else ""
 
 
 def start_mavbond(binary, workdir, name, conf, plugin_dir):
@@ -323,7 +310,7 @@ def bond_main(args) -> int:
         print(f"note: {bad_crc} frames of the recording have a bad CRC; they are left out")
         vehicle_frames = [(t, f) for t, f in vehicle_frames if tlog.crc_ok(f) is not False]
     workdir = tempfile.mkdtemp(prefix="mavbond-demo-")
-    plugin_dir = args.plugin_dir or plugin_dir_for(args.mavbond, workdir)
+    plugin_dir = args.plugin_dir or plugin_dir_for(args.mavbond)
     have_stats = bool(plugin_dir) and os.path.exists(os.path.join(plugin_dir, "stats.so"))
     p_auto, p_gcs, la, lb, ga, gb = (free_port() for _ in range(6))
     csv_path = os.path.join(workdir, "ground-stats.csv")

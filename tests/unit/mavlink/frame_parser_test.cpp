@@ -209,9 +209,30 @@ TEST(DatagramParser, BadCrcIsRejectedAndTheNextFrameSurvives) {
     }
 }
 
+TEST(DatagramParser, OneBitFlippedInTheMsgidNeverPasses) {
+    // The commonest damage on a radio link. The new id is either known (the CRC fails) or
+    // unknown, and then the CRC still proves it was a known frame one bit away: rejected.
+    for (const char* label : {"v2_heartbeat", "v1_heartbeat"}) {
+        const Bytes good = vec(label).bytes;
+        const bool v2 = good[0] == kMagicV2;
+        const std::vector<size_t> id_bytes = v2 ? std::vector<size_t>{7, 8, 9} : std::vector<size_t>{5};
+        for (size_t byte : id_bytes) {
+            for (int bit = 0; bit < 8; bit++) {
+                Bytes bad = good;
+                bad[byte] ^= static_cast<uint8_t>(1 << bit);
+                ParserCounters c;
+                EXPECT_TRUE(parse_datagram(bad, c).empty()) << label << " byte " << byte << " bit " << bit;
+                EXPECT_EQ(c.unknown_ids, 0u);
+                EXPECT_GE(c.crc_errors, 1u);
+            }
+        }
+    }
+}
+
 TEST(DatagramParser, CorruptedMsgidMayLookUnknown) {
-    // A corrupted msgid byte can turn a frame into one with an unknown id: it cannot be
-    // checked, so under Forward it goes out unverified (crc_checked false), under Drop not.
+    // Several bits of the msgid corrupted can turn a frame into one with an unknown id that
+    // no single flip explains: it cannot be checked, so under Forward it goes out unverified
+    // (crc_checked false), under Drop not.
     Bytes bad = vec("v2_heartbeat").bytes;
     bad[8] = 0x77;
     ASSERT_EQ(find_message(0x7700), nullptr);
