@@ -174,12 +174,14 @@ class Bench:
         self.plugin_dir.mkdir()
         self.plugins = set()
         for name in ("dedup", "stats"):
-            so = b / "plugins" / name / f"{name}.so"
+            so = b / "plugins" / f"{name}.so"
+            if not so.exists():
+                so = b / "plugins" / name / f"{name}.so"
             if so.exists():
                 (self.plugin_dir / so.name).symlink_to(so)
                 self.plugins.add(name)
         if "dedup" not in self.plugins:
-            sys.exit(f"run_bench: {b}/plugins/dedup/dedup.so is missing: mavbond cannot dedup")
+            sys.exit(f"run_bench: {b}/plugins/dedup.so is missing: mavbond cannot dedup")
         self.templates = tmp / "templates.txt"
 
     def buildtype(self) -> str:
@@ -265,6 +267,56 @@ class Bench:
             res["smaps"] = mem
         return res
 
+    def perf_profile(self, kind: str, rate: float, seconds: float) -> dict | None:
+        """perf record -e cpu-clock (software sampling: works in VMs) attached to a running
+        relay after its start-up, under the same load. Returns {dso: share}, {symbol: share},
+        and the trial's figures; None when perf does not work here."""
+        if not shutil.which("perf"):
+            return None
+        pa, pb, po = free_ports(3)
+        data = self.tmp / f"perf-{kind}.data"
+        proc, errf = self.start(kind, pa, pb, po)
+        perf = None
+        try:
+            time.sleep(0.2)
+            perf = subprocess.Popen(["perf", "record", "-q", "-e", "cpu-clock", "-F", "10000",
+                                     "-p", str(proc.pid), "-o", str(data)],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            time.sleep(0.3)
+            cmd = [str(self.load), "--templates", str(self.templates),
+                   "--link", f"127.0.0.1:{pa}", "--link", f"127.0.0.1:{pb}",
+                   "--listen", f"127.0.0.1:{po}", "--rate", str(rate), "--seconds", str(seconds),
+                   "--ready-timeout", "10", "--pid", str(proc.pid)]
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        finally:
+            if perf and perf.poll() is None:
+                perf.send_signal(signal.SIGINT)
+                try:
+                    perf.wait(20)
+                except subprocess.TimeoutExpired:
+                    perf.kill()
+                    perf.wait()
+            self.stop(proc, errf)
+        if r.returncode != 0 or not data.exists():
+            return None
+        res = json.loads(r.stdout)
+
+        def report(sort: str) -> dict:
+            out = subprocess.run(["perf", "report", "-i", str(data), "--sort", sort, "--stdio",
+                                  "--percent-limit", "0.3"], capture_output=True, text=True).stdout
+            shares = {}
+            for line in out.splitlines():
+                m = re.match(r"\s*([\d.]+)%\s+(\S+)(?:\s+\[[.k]\]\s+(.+?))?(?:\s+-\s+-)?\s*$", line)
+                if m:
+                    key = m.group(2) if sort == "dso" else f"{m.group(2)}: {m.group(3)}"
+                    shares[key] = float(m.group(1)) / 100
+            return shares
+        dso, sym = report("dso"), report("dso,symbol")
+        if not dso:
+            return None
+        return {"dso": dso, "sym": sym, "trial": res,
+                "cpu_per_frame_ns": res["cpu_ns"] / max(res["delivered"], 1)}
+
     # --- callgrind ---
 
     def callgrind(self, frames: int, links: int, tag: str) -> dict:
@@ -325,6 +377,26 @@ def callgrind_total(path: Path) -> int:
         if line.startswith("totals:") or line.startswith("summary:"):
             return int(line.split()[1])
     raise RuntimeError(f"no totals in {path}")
+
+
+def callgrind_calls(path: Path) -> dict:
+    """function -> number of calls (summed over its callers), from a callgrind out file."""
+    names: dict = {}
+    calls: dict = {}
+    callee = None
+    for line in path.read_text(errors="replace").splitlines():
+        m = re.match(r"^(c?fn|c?fi|c?fe|c?ob|fl)=\((\d+)\)(?: (.*))?$", line)
+        if m:
+            kind, ident, name = m.groups()
+            table = names.setdefault(kind.lstrip("c").replace("fe", "fi"), {})
+            if name is not None:
+                table[ident] = name
+            callee = table.get(ident) if kind == "cfn" else (None if kind in ("fn",) else callee)
+            continue
+        if line.startswith("calls=") and callee:
+            calls[callee] = calls.get(callee, 0) + int(line[6:].split()[0])
+            callee = None
+    return calls
 
 
 def annotate(path: Path, inclusive: bool) -> dict:
@@ -398,7 +470,12 @@ def run(args, tmp: Path, t_begin: float) -> int:
 
     print(f"mavbond benchmark: {time.strftime('%Y-%m-%d %H:%M:%S')}, {os.cpu_count()} CPUs, "
           f"{os.uname().release}")
-    print(f"build: {b.build} (buildtype {b.buildtype()})")
+    try:
+        head = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
+                              capture_output=True, text=True).stdout.strip() or "?"
+    except OSError:
+        head = "?"
+    print(f"build: {b.build} (buildtype {b.buildtype()}), source {head}")
     print(f"load: {source}: {mix['templates']} vehicle frames (sysid {mix['vehicle_sysid']}, "
           f"{mix['components']} components, {mix['message_ids']} message ids), "
           f"{mix['min_bytes']}..{mix['max_bytes']} bytes, mean {mix['mean_bytes']:.1f}; "
@@ -422,19 +499,31 @@ def run(args, tmp: Path, t_begin: float) -> int:
                 raw["fixed"].append(res)
         log(f"  fixed rates: trial {i + 1}/{args.trials} done ({time.monotonic() - t_begin:.0f} s)")
 
-    # Maximum rate with < 0.1% loss: independent searches (x1.5 up, then 3 bisections).
+    # Maximum rate with < 0.1% loss: independent searches (x1.5 up, then 3 bisections). Noise
+    # from other users of the machine only ever makes a step fail, so a failed step gets one
+    # retry: the rate passes if either try does.
+    step_s = 0.5 if args.quick else 0.7
+
+    def attempt(kind: str, rate: float, results: list) -> dict:
+        res = b.trial(kind, rate, step_s)
+        results.append(res)
+        if not res["ok"]:
+            again = b.trial(kind, rate, step_s)
+            results.append(again)
+            if again["ok"] or (again["loss"] < res["loss"] and not res["ok"]):
+                res = again
+        return res
+
     def search(kind: str) -> tuple[float, list[dict], bool]:
         lo, hi, results, limited = 0.0, None, [], False
         rate = 100000.0
         while hi is None:
-            res = b.trial(kind, rate, 0.5 if args.quick else 0.7)
-            results.append(res)
+            res = attempt(kind, rate, results)
             if res["ok"]:
                 lo, rate = rate, rate * 1.5
             else:
                 hi = rate
-                if res["gen_limited"] and res["loss"] < LOSS_LIMIT:
-                    limited = True
+                limited = res["gen_limited"] and res["loss"] < LOSS_LIMIT
             if rate > 2e6:
                 break
         if hi is None:
@@ -443,12 +532,12 @@ def run(args, tmp: Path, t_begin: float) -> int:
             lo = 1000.0
         for _ in range(3):
             mid = (lo + hi) / 2
-            res = b.trial(kind, mid, 0.5 if args.quick else 0.7)
-            results.append(res)
+            res = attempt(kind, mid, results)
             if res["ok"]:
                 lo = mid
             else:
                 hi = mid
+                limited = res["gen_limited"] and res["loss"] < LOSS_LIMIT
         return lo, results, limited
 
     maxima: dict = {"relay": [], "mavbond": []}
@@ -553,8 +642,31 @@ def why(b: Bench, args, S: dict, ratios: dict, mr: dict, cg, dp99: float, rss: f
     print()
     print("why (the profiles behind the misses):")
     if cpu_missed:
+        rate = cpu_missed[0]
+        prof = {k: b.perf_profile(k, rate, 2.0) for k in ("relay", "mavbond")}
+        if all(prof.values()):
+            print(f"  where the CPU goes at {fmt_rate(rate)}/s (perf record -e cpu-clock, separate run; ns per "
+                  "delivered frame = share x that run's CPU/frame):")
+            for kind in ("relay", "mavbond"):
+                p = prof[kind]
+                kernel = sum(v for k, v in p["dso"].items() if k.startswith("[kernel"))
+                cpf = p["cpu_per_frame_ns"]
+                user = ", ".join(f"{k} {v * cpf:.0f}" for k, v in sorted(p["dso"].items(), key=lambda kv: -kv[1])
+                                 if not k.startswith("[kernel"))
+                print(f"    {kind:<8} {cpf:>7.0f} ns/frame: kernel {kernel * cpf:.0f}; user space: {user}")
+            top = sorted(((v, k) for k, v in prof["mavbond"]["sym"].items() if not k.startswith("[kernel")),
+                         reverse=True)[:12]
+            cpf = prof["mavbond"]["cpu_per_frame_ns"]
+            print("    mavbond's user-space functions (ns per frame): " + ", ".join(
+                f"{short(k.split(': ', 1)[1])} {v * cpf:.0f}" for v, k in top))
+            ktop = sorted(((v, k) for k, v in prof["mavbond"]["sym"].items() if k.startswith("[kernel")),
+                          reverse=True)[:6]
+            print("    mavbond's top kernel functions (ns per frame): " + ", ".join(
+                f"{k.split(': ', 1)[1]} {v * cpf:.0f}" for v, k in ktop))
+            raw["perf"] = {k: {"dso": v["dso"], "sym": v["sym"]} for k, v in prof.items()}
+        else:
+            print("  (perf not available or not permitted: no kernel/user split)")
         if shutil.which("strace"):
-            rate = cpu_missed[0]
             calls = {}
             for kind in ("relay", "mavbond"):
                 path = b.tmp / f"strace-{kind}.txt"
@@ -641,6 +753,17 @@ def report_callgrind(runs: dict) -> dict:
     own = found.get("mavbond::DatagramParser::next", 0) + found.get("mavbond::Router::handle_frame", 0)
     print(f"  mavbond's own work per frame (parse + CRC + hash + filters + route, both copies): "
           f"{own:,.0f} Ir")
+    calls_a, calls_b = callgrind_calls(a["out"]), callgrind_calls(b2["out"])
+    watch = ("epoll_wait", "recvmmsg", "sendmmsg", "clock_gettime", "malloc", "free",
+             "DatagramParser::next", "crc_x25", "Router::handle_frame", "murmur3_x64_128")
+    counts = []
+    for w in watch:
+        names = [n for n in set(calls_a) | set(calls_b)
+                 if (lambda base: base == w or base.endswith("::" + w))(short(n).split("@")[0])]
+        total = sum(calls_b.get(n, 0) - calls_a.get(n, 0) for n in names)
+        if names:
+            counts.append(f"{w} {total / da:.2f}")
+    print("  calls per frame (2N - N): " + ", ".join(counts))
     diffs = sorted(((per(exc_a, exc_b, n), n) for n in set(exc_a) | set(exc_b)), reverse=True)
     print("  top functions by own cost per frame (exclusive, 2N - N):")
     for v, n in diffs[:15]:
