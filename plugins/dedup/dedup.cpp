@@ -39,11 +39,13 @@ constexpr uint32_t kMaxMembers = 8;
 // When full, the oldest instance of that key is forgotten (its late copy passes: fail open).
 constexpr int kInstances = 8;
 // A copy fits an instance when its skew is within this of the learned offset, or 4 mean
-// absolute deviations when the pair's jitter is larger. 25 ms covers a UART's byte timing
-// and a receive batch; the real jitter of a link takes over once learned. The cap keeps a
-// confused model from swallowing everything: a copy further off than that passes (a
-// duplicate delivered, never a good frame dropped).
-constexpr int64_t kMinTolerance = 25 * static_cast<int64_t>(kMs);
+// absolute deviations when the pair's jitter is larger. The floor covers a UART's byte
+// timing, a receive batch and the hiccups of a busy companion computer or an LTE modem (a
+// 25 ms floor let such a hiccup through as a duplicate); it only has to stay under half the
+// time identical bytes take to recur: 256 frames of one source (128 ms even at 2,000
+// frames/s). The cap keeps a confused model from swallowing everything: a copy further off
+// than that passes (a duplicate delivered, never a good frame dropped).
+constexpr int64_t kMinTolerance = 60 * static_cast<int64_t>(kMs);
 constexpr int64_t kMaxTolerance = 250 * static_cast<int64_t>(kMs);
 constexpr int64_t kToleranceDeviations = 4;
 // The offset starts as the median of the first samples, so a few wrong ones (a link that
