@@ -16,7 +16,10 @@
 #include <cinttypes>
 #include <cstdio>
 #include <cstring>
+#include <cstdlib>
+#include <memory>
 #include <new>
+#include <type_traits>
 #include <string>
 #include <vector>
 
@@ -68,6 +71,28 @@ enum class HashKind { murmur3_128, murmur3_32 };
 enum class KeyKind { frame, content };
 
 /// One remembered instance of a key, in the ring in arrival order.
+/// A fixed array from calloc: fresh zero pages that only become resident as they are used, so
+/// a generous max_entries costs memory only for what the window really holds. T must be
+/// trivially copyable with all-zero bytes a valid value.
+template <typename T>
+class ZeroedArray {
+public:
+    void allocate(size_t n) {
+        static_assert(std::is_trivially_copyable_v<T>);
+        data_.reset(static_cast<T*>(std::calloc(n, sizeof(T))));
+        if (!data_ && n > 0)
+            throw std::bad_alloc();
+    }
+    T& operator[](size_t i) { return data_.get()[i]; }
+    const T& operator[](size_t i) const { return data_.get()[i]; }
+
+private:
+    struct Free {
+        void operator()(T* p) const { std::free(p); }
+    };
+    std::unique_ptr<T, Free> data_;
+};
+
 struct Record {
     uint64_t t0;             // arrival of the first copy
     uint32_t entry;          // kNone: forgotten (its slot was reused), skipped by expiry
@@ -212,12 +237,13 @@ private:
     uint64_t reboot_jump_ns_ = kMinRebootJump;
 
     uint32_t capacity_ = 0;  // max_entries
-    std::vector<Record> ring_;
+    ZeroedArray<Record> ring_;
     uint32_t ring_head_ = 0, ring_count_ = 0;
-    std::vector<Entry> entries_;
-    std::vector<uint32_t> free_entries_;  // a stack; its size() never grows past capacity_
+    ZeroedArray<Entry> entries_;
+    ZeroedArray<uint32_t> free_entries_;  // entries given back, a stack
     uint32_t free_count_ = 0;
-    std::vector<uint32_t> table_;
+    uint32_t fresh_ = 0;                  // entries never used yet start here
+    ZeroedArray<uint32_t> table_;         // entry + 1; 0: an empty slot
     uint32_t table_bits_ = 0, table_mask_ = 0;
 
     std::vector<PairModel> pairs_;
@@ -272,13 +298,10 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
     while ((uint64_t{1} << table_bits_) < 2 * uint64_t{capacity_})
         table_bits_++;
     table_mask_ = (1u << table_bits_) - 1;
-    ring_.assign(capacity_, Record{});
-    entries_.assign(capacity_, Entry{});
-    free_entries_.resize(capacity_);
-    for (uint32_t i = 0; i < capacity_; i++)
-        free_entries_[i] = capacity_ - 1 - i;
-    free_count_ = capacity_;
-    table_.assign(size_t{1} << table_bits_, kNone);
+    ring_.allocate(capacity_);
+    entries_.allocate(capacity_);
+    free_entries_.allocate(capacity_);
+    table_.allocate(size_t{1} << table_bits_);
     pairs_.assign(size_t{kMaxBonds} * kMaxMembers * kMaxMembers, PairModel{});
     members_.assign(size_t{kMaxBonds} * kMaxMembers, Member{});
     streams_.assign(kStreams, Stream{});
@@ -355,9 +378,9 @@ Dedup::Key Dedup::hash(const mavbond_frame* f) const {
 
 uint32_t Dedup::find(uint32_t bond, Key key) const {
     for (uint32_t i = table_home(key.h1, bond);; i = (i + 1) & table_mask_) {
-        uint32_t e = table_[i];
-        if (e == kNone)
+        if (table_[i] == 0)
             return kNone;
+        uint32_t e = table_[i] - 1;
         const Entry& en = entries_[e];
         if (en.h1 == key.h1 && en.h2 == key.h2 && en.bond == bond)
             return e;
@@ -365,7 +388,7 @@ uint32_t Dedup::find(uint32_t bond, Key key) const {
 }
 
 uint32_t Dedup::insert_entry(uint32_t bond, Key key) {
-    uint32_t e = free_entries_[--free_count_];
+    uint32_t e = free_count_ ? free_entries_[--free_count_] : fresh_++;
     Entry& en = entries_[e];
     en.h1 = key.h1;
     en.h2 = key.h2;
@@ -373,27 +396,27 @@ uint32_t Dedup::insert_entry(uint32_t bond, Key key) {
     en.count = 0;
     en.home = table_home(key.h1, bond);
     uint32_t i = en.home;
-    while (table_[i] != kNone)
+    while (table_[i] != 0)
         i = (i + 1) & table_mask_;
-    table_[i] = e;
+    table_[i] = e + 1;
     return e;
 }
 
 void Dedup::erase_entry(uint32_t e) {
     uint32_t i = entries_[e].home;
-    while (table_[i] != e)
+    while (table_[i] != e + 1)
         i = (i + 1) & table_mask_;
     // Backward-shift deletion: later keys of the probe run move up, so no tombstones pile up
     // and lookups stay O(1) however long the daemon runs.
-    for (uint32_t j = (i + 1) & table_mask_; table_[j] != kNone; j = (j + 1) & table_mask_) {
-        uint32_t home = entries_[table_[j]].home;
+    for (uint32_t j = (i + 1) & table_mask_; table_[j] != 0; j = (j + 1) & table_mask_) {
+        uint32_t home = entries_[table_[j] - 1].home;
         bool stays = i <= j ? (i < home && home <= j) : (i < home || home <= j);
         if (!stays) {
             table_[i] = table_[j];
             i = j;
         }
     }
-    table_[i] = kNone;
+    table_[i] = 0;
     free_entries_[free_count_++] = e;
 }
 
@@ -684,7 +707,7 @@ std::string Dedup::status() const {
     out += "\",";
     std::snprintf(num, sizeof num,
                   "\"drop_stale\":%s,\"entries\":%u,\"instances\":%u,\"max_entries\":%u,",
-                  drop_stale_ ? "true" : "false", capacity_ - free_count_, ring_count_, capacity_);
+                  drop_stale_ ? "true" : "false", fresh_ - free_count_, ring_count_, capacity_);
     out += num;
     std::snprintf(num, sizeof num, "\"evicted_early\":%" PRIu64 ",\"untracked_streams\":%" PRIu64
                   ",\"links\":[", evicted_early_, untracked_streams_);
