@@ -1,0 +1,84 @@
+"""PNG plots in the style of the paper's Fig. 5.1 and 5.2: packet loss per second of each link
+and of the delivered (filtered) stream, one panel per mode; and a bar chart of the delivered
+loss across scenarios. matplotlib, Agg backend (no display needed)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Dict, List
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+import scenarios as S  # noqa: E402
+
+LINK_COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:purple"]
+DELIVERED = "black"
+
+
+def scenario_plot(sc: S.Scenario, metrics: Dict[str, dict], path: Path) -> None:
+    modes = [m for m in S.MODES if m in metrics]
+    fig, axes = plt.subplots(len(modes), 1, figsize=(8.5, 2.3 * len(modes) + 0.6),
+                             sharex=True, squeeze=False)
+    top = 0.0
+    for m in modes:
+        for name, ys in metrics[m]["per_second"].items():
+            top = max(top, max((y for y in ys if y is not None), default=0))
+    top = min(100.0, max(2.0, top * 1.1))
+    for ax, m in zip(axes[:, 0], modes):
+        mm = metrics[m]
+        ps = mm["per_second"]
+        for k, name in enumerate(mm["links"]):
+            ys = ps[name]
+            ax.plot(range(len(ys)), ys, color=LINK_COLOURS[k % 4], lw=1.1, alpha=0.8,
+                    label=f"{name} ({mm['link_loss'][name]:.2%})")
+        ys = ps["delivered"]
+        ax.plot(range(len(ys)), ys, color=DELIVERED, lw=1.8,
+                label=f"delivered ({mm['delivered_loss']:.3%})")
+        ax.set_ylim(-top * 0.03, top)
+        ax.set_ylabel("loss per s (%)")
+        title = S.MODE_TITLES[m]
+        if m == "single":
+            title += f" ({mm['links'][0]})"
+        ax.set_title(title, loc="left", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right", ncol=len(mm["links"]) + 1, framealpha=0.85)
+        for sw in mm.get("switches", []):
+            ax.axvline(sw["t"], color="red", lw=0.8, ls="--")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"{sc.title}", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def summary_plot(rows: List[dict], path: Path) -> None:
+    """rows: {name, title, bound, single, linkswitch, dedup} with loss fractions."""
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    width = 0.26
+    colours = {"single": "tab:gray", "linkswitch": "tab:red", "dedup": "tab:green"}
+    floor = 1e-5  # 0.001 %: where "nothing lost" is drawn on the log axis
+    for k, m in enumerate(S.MODES):
+        xs = [i + (k - 1) * width for i in range(len(rows))]
+        ys = [max(r[m], floor) for r in rows]
+        bars = ax.bar(xs, [y * 100 for y in ys], width, color=colours[m],
+                      label=S.MODE_TITLES[m])
+        for b, r in zip(bars, rows):
+            v = r[m]
+            ax.text(b.get_x() + b.get_width() / 2, b.get_height() * 1.15,
+                    "0" if v == 0 else f"{v * 100:.2g}", ha="center", va="bottom", fontsize=7)
+    for i, r in enumerate(rows):
+        ax.plot([i + 0.5 * width, i + 1.5 * width], [max(r["bound"], floor) * 100] * 2,
+                color="black", lw=2, label="independence bound" if i == 0 else None)
+    ax.set_yscale("log")
+    ax.set_ylim(floor * 100 * 0.7, 100 * 3)
+    ax.set_xticks(range(len(rows)))
+    ax.set_xticklabels([r["name"] for r in rows])
+    ax.set_ylabel("delivered loss (%), log scale")
+    ax.set_title("Delivered loss by scenario (bar labels in %; 0 = nothing lost)", fontsize=11)
+    ax.grid(axis="y", alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="upper right", ncol=4)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,107 @@
+"""The link conditions the comparison runs: each scenario is a set of emulated links
+(tests/tools/linkemu.py options, one seed per link) and how long the stream runs.
+
+Every scenario is run three times on the same stream and the same per-link seeds: one link
+alone (the first link), `linkswitch` and `dedup` (both with their defaults, which are the
+paper's thresholds: 1 s silence, 5 % loss over 5 s). The link emulators' loss decisions depend
+only on (seed, datagram index), so link A loses the same frames in all three runs; what
+depends on timing (an outage start, a full radio queue) can differ by a few frames."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
+
+
+@dataclass
+class Link:
+    name: str
+    label: str            # what the link stands for, for tables and legends
+    seed: int
+    opts: Dict[str, object]  # linkemu options (both directions)
+
+
+@dataclass
+class Scenario:
+    name: str
+    title: str
+    seconds: float
+    links: List[Link]
+    note: str = ""
+    # Stream-relative outages: {link name: (start s, length s)}, turned into linkemu's
+    # --outage (which counts from the emulator's start) when the run starts.
+    outages: Dict[str, tuple] = field(default_factory=dict)
+    linkswitch: Dict[str, object] = field(default_factory=dict)
+    dedup: Dict[str, object] = field(default_factory=dict)
+
+
+# The 57600-baud radio: 8N1 leaves 46,080 bit/s of payload; a SiK radio buffers a few KB.
+RADIO_57600 = {"rate": 46080, "queue_bytes": 4096}
+
+SCENARIOS: List[Scenario] = [
+    Scenario(
+        "paper", "The paper's: 1 % loss on each of two links", 120,
+        [Link("link1", "1 % loss, 20 ms", 11, {"loss": "1%", "delay": "20ms", "jitter": "2ms"}),
+         Link("link2", "1 % loss, 20 ms", 12, {"loss": "1%", "delay": "20ms", "jitter": "2ms"})],
+        note="Section 5 of the paper: 1 % loss injected per link (tc there, linkemu here), "
+             "UDP, an ArduPilot stream of about 124 frames/s."),
+    Scenario(
+        "bursty", "Bursty loss (Gilbert-Elliott) on both links", 60,
+        [Link("radio1", "GE bursts ~3 %, 20 ms", 21,
+              {"ge": "0.0015,0.05,0,1", "delay": "20ms", "jitter": "2ms"}),
+         Link("radio2", "GE bursts ~3 %, 25 ms", 22,
+              {"ge": "0.0015,0.05,0,1", "delay": "25ms", "jitter": "2ms"})],
+        note="Two radios fading independently: bursts of 20 frames (160 ms) on average, "
+             "about 3 % loss each."),
+    Scenario(
+        "outage", "Link 1 drops out for 15 s", 40,
+        [Link("link1", "1 %, 20 ms, down 10-25 s", 31, {"loss": "1%", "delay": "20ms"}),
+         Link("link2", "1 %, 20 ms", 32, {"loss": "1%", "delay": "20ms"})],
+        outages={"link1": (10.0, 15.0)},
+        note="The preferred link is dead from 10 s to 25 s of the stream, then comes back."),
+    Scenario(
+        "skew", "Latency skew: 5 ms against 300 ms", 60,
+        [Link("fast", "1 %, 5 ms", 41, {"loss": "1%", "delay": "5ms"}),
+         Link("slow", "1 %, 300 ms", 42, {"loss": "1%", "delay": "300ms"})],
+        note="A copy on the slow link arrives 295 ms after the fast one: what the fast link "
+             "lost comes late, and late timestamped samples are dropped as stale."),
+    Scenario(
+        "three", "Three links", 60,
+        [Link("radio", "1 %, 15 ms", 51, {"loss": "1%", "delay": "15ms", "jitter": "2ms"}),
+         Link("lte", "2 %, 60 ms +-15 ms", 52,
+              {"loss": "2%", "delay": "60ms", "jitter": "15ms"}),
+         Link("sat", "GE bursts ~5 %, 250 ms", 53,
+              {"ge": "0.005,0.1,0.005,1", "delay": "250ms", "jitter": "20ms"})],
+        note="A radio, an LTE modem and a satellite link, all lossy."),
+    Scenario(
+        "radio57600", "A 57600-baud radio beside a fast link", 60,
+        [Link("radio", "57600 baud, 1 %, 5 ms", 61,
+              {"loss": "1%", "delay": "5ms", **RADIO_57600}),
+         Link("lte", "1 %, 50 ms +-15 ms", 62,
+              {"loss": "1%", "delay": "50ms", "jitter": "15ms"})],
+        note="The stream (~36 kbit/s) fills 80 % of the radio's 46 kbit/s: frames queue in "
+             "bursts and the full queue drops some."),
+]
+
+BY_NAME = {s.name: s for s in SCENARIOS}
+
+MODES = ("single", "linkswitch", "dedup")
+MODE_TITLES = {"single": "one link alone", "linkswitch": "linkswitch", "dedup": "dedup"}
+
+
+def filters_for(mode: str, sc: Scenario) -> List[dict]:
+    """The ground gateway's filter chain for a mode."""
+    names = [l.name for l in sc.links]
+    if mode == "linkswitch":
+        return [{"plugin": "linkswitch", "bonds": ["vehicle"], "priority": names,
+                 **sc.linkswitch}]
+    if mode == "dedup":
+        return [{"plugin": "dedup", "bonds": ["vehicle"], **sc.dedup}]
+    return []
+
+
+def links_for(mode: str, sc: Scenario) -> List[Link]:
+    return sc.links[:1] if mode == "single" else list(sc.links)
+
+
+def get(name: str) -> Optional[Scenario]:
+    return BY_NAME.get(name)
