@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "mavbond/plugin.h"
+#include "mavbond/filter.hpp"
 #include "murmur3.h"
 
 namespace mavbond::dedup {
@@ -180,8 +180,14 @@ public:
 
     mavbond_verdict on_ingress(const mavbond_frame* f, mavbond_frame_notes* notes,
                                const mavbond_link* from);
-    void on_link(const mavbond_link* link);
+    void on_link(const mavbond_link* link, mavbond_link_event event);
     std::string status() const;
+    size_t status_json(char* buf, size_t len) const {
+        std::string s = status();
+        if (buf && len > 0)
+            std::snprintf(buf, len, "%s", s.c_str());
+        return s.size();
+    }
 
 private:
     struct Key {
@@ -344,7 +350,7 @@ bool Dedup::in_scope(const mavbond_link* link) {
     return cached == 1;
 }
 
-void Dedup::on_link(const mavbond_link* link) {
+void Dedup::on_link(const mavbond_link* link, mavbond_link_event) {
     // Ids are reused after a link goes away: its scope is decided again on its next frame.
     if (link && link->id < kScopeCache)
         scope_cache_[link->id] = 0;
@@ -756,75 +762,10 @@ std::string Dedup::status() const {
     return out;
 }
 
-// --- C trampolines: no exception crosses the boundary; on any failure the frame passes ------
-
-int create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg,
-           void** out_self, char* err, size_t err_len) {
-    try {
-        auto* self = new Dedup(api, h);
-        if (self->init(cfg, err, err_len) != 0) {
-            delete self;
-            return -1;
-        }
-        *out_self = self;
-        return 0;
-    } catch (const std::bad_alloc&) {
-        std::snprintf(err, err_len, "dedup: out of memory (lower max_entries)");
-    } catch (...) {
-        std::snprintf(err, err_len, "dedup: unexpected error in create");
-    }
-    return -1;
-}
-
-void destroy(void* self) { delete static_cast<Dedup*>(self); }
-
-mavbond_verdict on_ingress(void* self, const mavbond_frame* f, mavbond_frame_notes* notes,
-                           const mavbond_link* from) {
-    try {
-        return static_cast<Dedup*>(self)->on_ingress(f, notes, from);
-    } catch (...) {
-        return MAVBOND_PASS;
-    }
-}
-
-void on_link(void* self, const mavbond_link* link, mavbond_link_event) {
-    try {
-        static_cast<Dedup*>(self)->on_link(link);
-    } catch (...) {
-    }
-}
-
-size_t status_json(void* self, char* buf, size_t len) {
-    try {
-        std::string s = static_cast<Dedup*>(self)->status();
-        if (buf && len > 0)
-            std::snprintf(buf, len, "%s", s.c_str());
-        return s.size();
-    } catch (...) {
-        if (buf && len > 0)
-            buf[0] = '\0';
-        return 0;
-    }
-}
-
-const mavbond_plugin_descriptor kDescriptor = {
-    MAVBOND_PLUGIN_ABI_VERSION,
-    sizeof(mavbond_plugin_descriptor),
-    "dedup",
-    "0.1.0",
-    "drops copies of a frame that already arrived on another link of the bond",
-    kOptions,
-    create,
-    destroy,
-    on_ingress,
-    nullptr,
-    on_link,
-    status_json,
-};
-
 }  // namespace
-}  // namespace mavbond::dedup
 
-extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {
-    return &mavbond::dedup::kDescriptor;
-}
+MAVBOND_FILTER_PLUGIN(Dedup, "dedup", "0.1.0",
+                      "drops copies of a frame that already arrived on another link of the bond",
+                      kOptions)
+
+}  // namespace mavbond::dedup

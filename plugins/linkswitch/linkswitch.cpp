@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "json_out.h"
-#include "mavbond/plugin.h"
+#include "mavbond/filter.hpp"
 #include "seq_loss.h"
 
 namespace {
@@ -546,67 +546,8 @@ size_t LinkSwitch::status_json(char* buf, size_t len) {
     return out.length();
 }
 
-// --- the C boundary: no exception crosses it -------------------------------------------------
-
-int ls_create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg,
-              void** out_self, char* err, size_t err_len) {
-    try {
-        auto* self = new LinkSwitch(api, h);
-        if (self->init(cfg, err, err_len) != 0) {
-            delete self;
-            return -1;
-        }
-        *out_self = self;
-        return 0;
-    } catch (const std::exception& e) {
-        snprintf(err, err_len, "linkswitch: %s", e.what());
-        return -1;
-    }
-}
-
-void ls_destroy(void* self) { delete static_cast<LinkSwitch*>(self); }
-
-mavbond_verdict ls_on_ingress(void* self, const mavbond_frame* f, mavbond_frame_notes* notes,
-                              const mavbond_link* from) {
-    try {
-        return static_cast<LinkSwitch*>(self)->on_ingress(f, notes, from);
-    } catch (...) {
-        return MAVBOND_PASS;  // fail open: a filter bug must not cut the telemetry
-    }
-}
-
-void ls_on_link(void* self, const mavbond_link* link, mavbond_link_event event) {
-    try {
-        static_cast<LinkSwitch*>(self)->on_link(link, event);
-    } catch (...) {
-    }
-}
-
-size_t ls_status_json(void* self, char* buf, size_t len) {
-    try {
-        return static_cast<LinkSwitch*>(self)->status_json(buf, len);
-    } catch (...) {
-        return 0;
-    }
-}
-
-const mavbond_plugin_descriptor kDescriptor = {
-    MAVBOND_PLUGIN_ABI_VERSION,
-    sizeof(mavbond_plugin_descriptor),
-    "linkswitch",
-    "0.1.0",
-    "active-backup: only the active link of a bond passes; switch on silence or loss",
-    kOptions,
-    ls_create,
-    ls_destroy,
-    ls_on_ingress,
-    nullptr,
-    ls_on_link,
-    ls_status_json,
-};
-
 }  // namespace
 
-extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {
-    return &kDescriptor;
-}
+MAVBOND_FILTER_PLUGIN(LinkSwitch, "linkswitch", "0.1.0",
+                      "active-backup: only the active link of a bond passes; switch on silence or loss",
+                      kOptions)

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "json_out.h"
-#include "mavbond/plugin.h"
+#include "mavbond/filter.hpp"
 #include "seq_loss.h"
 
 namespace {
@@ -587,68 +587,8 @@ size_t Stats::status_json(char* buf, size_t len) {
     return out.length();
 }
 
-// --- the C boundary: no exception crosses it -------------------------------------------------
-
-int st_create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg,
-              void** out_self, char* err, size_t err_len) {
-    try {
-        auto* self = new Stats(api, h);
-        if (self->init(cfg, err, err_len) != 0) {
-            delete self;
-            return -1;
-        }
-        *out_self = self;
-        return 0;
-    } catch (const std::exception& e) {
-        snprintf(err, err_len, "stats: %s", e.what());
-        return -1;
-    }
-}
-
-void st_destroy(void* self) { delete static_cast<Stats*>(self); }
-
-mavbond_verdict st_on_ingress(void* self, const mavbond_frame* f, mavbond_frame_notes* notes,
-                              const mavbond_link* from) {
-    try {
-        static_cast<Stats*>(self)->on_ingress(f, notes, from);
-    } catch (...) {
-        // Counting failed (out of memory adopting a new link): the frame still goes on.
-    }
-    return MAVBOND_PASS;
-}
-
-void st_on_link(void* self, const mavbond_link* link, mavbond_link_event event) {
-    try {
-        static_cast<Stats*>(self)->on_link(link, event);
-    } catch (...) {
-    }
-}
-
-size_t st_status_json(void* self, char* buf, size_t len) {
-    try {
-        return static_cast<Stats*>(self)->status_json(buf, len);
-    } catch (...) {
-        return 0;
-    }
-}
-
-const mavbond_plugin_descriptor kDescriptor = {
-    MAVBOND_PLUGIN_ABI_VERSION,
-    sizeof(mavbond_plugin_descriptor),
-    "stats",
-    "0.1.0",
-    "per link and bond: frames, loss from sequence gaps, delivered loss, duplicates, skew",
-    kOptions,
-    st_create,
-    st_destroy,
-    st_on_ingress,
-    nullptr,
-    st_on_link,
-    st_status_json,
-};
-
 }  // namespace
 
-extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {
-    return &kDescriptor;
-}
+MAVBOND_FILTER_PLUGIN(Stats, "stats", "0.1.0",
+                      "per link and bond: frames, loss from sequence gaps, delivered loss, duplicates, skew",
+                      kOptions)

@@ -1,0 +1,112 @@
+// A C++ filter plugin in a few lines: write a class, let FilterPlugin<T> make the C ABI's
+// trampolines and descriptor. No exception crosses the boundary; on any failure a frame
+// passes (fail open: a filter bug must not cut the telemetry).
+//
+// T provides:
+//   T(const mavbond_host_api* api, mavbond_host* host);
+//   int init(const mavbond_config* cfg, char* err, size_t err_len);   // 0, or a message in err
+//   mavbond_verdict on_ingress(const mavbond_frame*, mavbond_frame_notes*, const mavbond_link*);
+//     (or returning void: an observer that never drops)
+// and, when it needs them:
+//   void on_link(const mavbond_link* link, mavbond_link_event event);
+//   size_t status_json(char* buf, size_t len);   // the length it needed, like snprintf
+//
+// In the plugin:
+//   MAVBOND_FILTER_PLUGIN(MyFilter, "myfilter", "1.0", "what it does", kOptions)
+#ifndef MAVBOND_FILTER_HPP
+#define MAVBOND_FILTER_HPP
+
+#include <cstdio>
+#include <exception>
+#include <memory>
+#include <new>
+#include <type_traits>
+
+#include "mavbond/plugin.h"
+
+namespace mavbond {
+
+template <typename T>
+struct FilterPlugin {
+    static int create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg,
+                      void** out_self, char* err, size_t err_len) noexcept {
+        try {
+            auto self = std::make_unique<T>(api, h);
+            if (self->init(cfg, err, err_len) != 0)
+                return -1;
+            *out_self = self.release();
+            return 0;
+        } catch (const std::bad_alloc&) {
+            std::snprintf(err, err_len, "out of memory");
+        } catch (const std::exception& e) {
+            std::snprintf(err, err_len, "%s", e.what());
+        } catch (...) {
+            std::snprintf(err, err_len, "unexpected error in create");
+        }
+        return -1;
+    }
+
+    static void destroy(void* self) noexcept { delete static_cast<T*>(self); }
+
+    static mavbond_verdict on_ingress(void* self, const mavbond_frame* f,
+                                      mavbond_frame_notes* notes, const mavbond_link* from) noexcept {
+        try {
+            T& t = *static_cast<T*>(self);
+            if constexpr (std::is_void_v<decltype(t.on_ingress(f, notes, from))>)
+                t.on_ingress(f, notes, from);
+            else
+                return t.on_ingress(f, notes, from);
+        } catch (...) {
+        }
+        return MAVBOND_PASS;
+    }
+
+    static void on_link(void* self, const mavbond_link* link, mavbond_link_event event) noexcept {
+        try {
+            static_cast<T*>(self)->on_link(link, event);
+        } catch (...) {
+        }
+    }
+
+    static size_t status_json(void* self, char* buf, size_t len) noexcept {
+        try {
+            return static_cast<T*>(self)->status_json(buf, len);
+        } catch (...) {
+            if (buf && len > 0)
+                buf[0] = '\0';
+            return 0;
+        }
+    }
+
+    static constexpr mavbond_plugin_descriptor descriptor(const char* name, const char* version,
+                                                          const char* description,
+                                                          const mavbond_option* options) {
+        mavbond_plugin_descriptor d{};
+        d.abi_version = MAVBOND_PLUGIN_ABI_VERSION;
+        d.struct_size = sizeof(mavbond_plugin_descriptor);
+        d.name = name;
+        d.version = version;
+        d.description = description;
+        d.options = options;
+        d.create = create;
+        d.destroy = destroy;
+        d.on_ingress = on_ingress;
+        if constexpr (requires(T t) { t.on_link(nullptr, MAVBOND_LINK_ADDED); })
+            d.on_link = on_link;
+        if constexpr (requires(T t, char* b) { t.status_json(b, size_t{0}); })
+            d.status_json = status_json;
+        return d;
+    }
+};
+
+}  // namespace mavbond
+
+/// Exports plugin class T under `name` (which must equal the file name NAME.so).
+#define MAVBOND_FILTER_PLUGIN(T, name, version, description, options)                        \
+    extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {  \
+        static constexpr mavbond_plugin_descriptor kDescriptor =                            \
+            ::mavbond::FilterPlugin<T>::descriptor(name, version, description, options);    \
+        return &kDescriptor;                                                                 \
+    }
+
+#endif  // MAVBOND_FILTER_HPP
