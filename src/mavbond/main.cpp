@@ -187,8 +187,8 @@ int run_daemon(const Options& opts) {
         config->plugin_dir = opts.plugin_dir;
     if (config->plugin_dir.empty())
         config->plugin_dir = MAVBOND_PLUGIN_DIR;
-    if (!opts.check_config)
-        log_set_level(config->log_level);
+    // --check-config answers with one line (or the error): no progress lines around it.
+    log_set_level(opts.check_config ? LogLevel::Warning : config->log_level);
 
     auto loop = EventLoop::create();
     if (!loop) {
