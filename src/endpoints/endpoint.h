@@ -31,6 +31,24 @@ struct EndpointStats {
     EndpointStats& operator+=(const EndpointStats& o);
 };
 
+/// Calls f(name, value) for every counter, in one order: the stats log lines, the status
+/// socket and the tests all name them this way.
+template <typename F>
+void for_each_counter(const EndpointStats& s, F&& f) {
+    f("rx_frames", s.rx.frames);
+    f("rx_bytes", s.rx.bytes);
+    f("crc_errors", s.rx.crc_errors);
+    f("garbage_bytes", s.rx.garbage_bytes);
+    f("unknown_ids", s.rx.unknown_ids);
+    f("bad_flags", s.rx.bad_flags);
+    f("rx_filtered", s.rx_filtered);
+    f("tx_frames", s.tx_frames);
+    f("tx_bytes", s.tx_bytes);
+    f("tx_filtered", s.tx_filtered);
+    f("tx_dropped", s.tx_dropped);
+    f("tx_errors", s.tx_errors);
+}
+
 /// Allow/block lists; an empty allow list allows everything, block wins.
 class MessageFilter {
 public:

@@ -79,19 +79,10 @@ int parse_args(int argc, char** argv, Options& opts) {
 }
 
 std::string counters_line(const Endpoint& e) {
-    EndpointStats s = e.total_stats();
-    char line[512];
-    snprintf(line, sizeof line,
-             "stats endpoint=%s kind=%s rx_frames=%llu rx_bytes=%llu crc_errors=%llu "
-             "garbage_bytes=%llu unknown_ids=%llu bad_flags=%llu rx_filtered=%llu tx_frames=%llu "
-             "tx_bytes=%llu tx_filtered=%llu tx_dropped=%llu tx_errors=%llu",
-             e.name().c_str(), e.kind(), (unsigned long long)s.rx.frames,
-             (unsigned long long)s.rx.bytes, (unsigned long long)s.rx.crc_errors,
-             (unsigned long long)s.rx.garbage_bytes, (unsigned long long)s.rx.unknown_ids,
-             (unsigned long long)s.rx.bad_flags, (unsigned long long)s.rx_filtered,
-             (unsigned long long)s.tx_frames, (unsigned long long)s.tx_bytes,
-             (unsigned long long)s.tx_filtered, (unsigned long long)s.tx_dropped,
-             (unsigned long long)s.tx_errors);
+    std::string line = "stats endpoint=" + e.name() + " kind=" + e.kind();
+    for_each_counter(e.total_stats(), [&line](const char* name, uint64_t value) {
+        line += std::string(" ") + name + "=" + std::to_string(value);
+    });
     return line;
 }
 
@@ -104,20 +95,12 @@ std::string status_document(const std::vector<Endpoint::Ptr>& endpoints, const R
                       ",\"endpoints\":[";
     for (size_t i = 0; i < endpoints.size(); i++) {
         const Endpoint& e = *endpoints[i];
-        EndpointStats s = e.total_stats();
-        char buf[640];
-        snprintf(buf, sizeof buf,
-                 "%s{\"name\":\"%s\",\"kind\":\"%s\",\"bond\":\"%s\",\"rx_frames\":%llu,"
-                 "\"rx_bytes\":%llu,\"crc_errors\":%llu,\"garbage_bytes\":%llu,\"unknown_ids\":%llu,"
-                 "\"rx_filtered\":%llu,\"tx_frames\":%llu,\"tx_bytes\":%llu,\"tx_dropped\":%llu,"
-                 "\"tx_errors\":%llu}",
-                 i ? "," : "", e.name().c_str(), e.kind(), e.config().bond.c_str(),
-                 (unsigned long long)s.rx.frames, (unsigned long long)s.rx.bytes,
-                 (unsigned long long)s.rx.crc_errors, (unsigned long long)s.rx.garbage_bytes,
-                 (unsigned long long)s.rx.unknown_ids, (unsigned long long)s.rx_filtered,
-                 (unsigned long long)s.tx_frames, (unsigned long long)s.tx_bytes,
-                 (unsigned long long)s.tx_dropped, (unsigned long long)s.tx_errors);
-        out += buf;
+        out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
+               "\",\"bond\":\"" + e.config().bond + "\"";
+        for_each_counter(e.total_stats(), [&out](const char* name, uint64_t value) {
+            out += std::string(",\"") + name + "\":" + std::to_string(value);
+        });
+        out += "}";
     }
     out += "],\"bonds\":[";
     for (size_t i = 0; i < router.bonds().size(); i++) {
