@@ -62,7 +62,8 @@ def mode_metrics(raw: dict, mode: str) -> dict:
     switches = []
     order = sorted(first.items(), key=lambda kv: kv[1])
     times = [t for _, t in order]
-    for t_sw, old, new, why in m["switches"]:
+    # A switch logged after the stream ended is the end of the stream, not of a link.
+    for t_sw, old, new, why in [s for s in m["switches"] if s[0] <= max(sent) + 0.5]:
         old_n, new_n = link_of(old, links), link_of(new, links)
         k = bisect.bisect_right(times, t_sw)
         before = order[k - 1] if k > 0 else None

@@ -260,6 +260,8 @@ def main() -> int:
     ap.add_argument("--mavbond", default=os.environ.get(
         "MAVBOND_BIN", str(REPO / "build" / "src" / "mavbond")))
     ap.add_argument("--plugin-dir")
+    ap.add_argument("--report-only", action="store_true",
+                    help="no runs: tables and plots again from the raw records in --out")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--list", action="store_true", help="list the scenarios")
     args = ap.parse_args()
@@ -272,6 +274,11 @@ def main() -> int:
         args.plugin_dir = str(Path(args.mavbond).resolve().parent.parent / "plugins")
     if args.worker:
         return worker(args)
+    try:
+        import matplotlib  # noqa: F401, PLC0415
+    except ImportError:
+        raise SystemExit("matplotlib is missing from this Python (scripts/setup.sh installs it "
+                         "into .venv)") from None
     names = [s.name for s in S.SCENARIOS] + ["window"]
     if args.only:
         want = args.only.split(",")
@@ -285,9 +292,13 @@ def main() -> int:
     names.sort(key=lambda n: -length[n])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for n in names:
-        (out / "raw" / f"{n}.json").unlink(missing_ok=True)
-    runtime = run_jobs(args, names)
+    if args.report_only:
+        runtime = float((out / "runtime.txt").read_text())
+    else:
+        for n in names:
+            (out / "raw" / f"{n}.json").unlink(missing_ok=True)
+        runtime = run_jobs(args, names)
+        (out / "runtime.txt").write_text(f"{runtime:.1f}\n")
     rep = build_report(out, names, runtime, args)
     results = checks(rep["mets"])
     for what, ok, detail in results:

@@ -58,7 +58,7 @@ def summary_plot(rows: List[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(9, 4.2))
     width = 0.26
     colours = {"single": "tab:gray", "linkswitch": "tab:red", "dedup": "tab:green"}
-    floor = 1e-5  # 0.001 %: where "nothing lost" is drawn on the log axis
+    floor = 1e-6  # 0.0001 %: where "nothing lost" is drawn on the log axis
     for k, m in enumerate(S.MODES):
         xs = [i + (k - 1) * width for i in range(len(rows))]
         ys = [max(r[m], floor) for r in rows]

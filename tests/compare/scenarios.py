@@ -47,10 +47,10 @@ SCENARIOS: List[Scenario] = [
     Scenario(
         "bursty", "Bursty loss (Gilbert-Elliott) on both links", 60,
         [Link("radio1", "GE bursts ~3 %, 20 ms", 21,
-              {"ge": "0.0015,0.05,0,1", "delay": "20ms", "jitter": "2ms"}),
+              {"ge": "0.003,0.1,0,1", "delay": "20ms", "jitter": "2ms"}),
          Link("radio2", "GE bursts ~3 %, 25 ms", 22,
-              {"ge": "0.0015,0.05,0,1", "delay": "25ms", "jitter": "2ms"})],
-        note="Two radios fading independently: bursts of 20 frames (160 ms) on average, "
+              {"ge": "0.003,0.1,0,1", "delay": "25ms", "jitter": "2ms"})],
+        note="Two radios fading independently: bursts of 10 frames (85 ms) on average, "
              "about 3 % loss each."),
     Scenario(
         "outage", "Link 1 drops out for 15 s", 40,
@@ -78,8 +78,8 @@ SCENARIOS: List[Scenario] = [
               {"loss": "1%", "delay": "5ms", **RADIO_57600}),
          Link("lte", "1 %, 50 ms +-15 ms", 62,
               {"loss": "1%", "delay": "50ms", "jitter": "15ms"})],
-        note="The stream (~36 kbit/s) fills 80 % of the radio's 46 kbit/s: frames queue in "
-             "bursts and the full queue drops some."),
+        note="The stream fills most of the radio's 46 kbit/s of payload: frames queue behind "
+             "each other when the autopilot sends in bursts (a full 4 KB queue drops)."),
 ]
 
 BY_NAME = {s.name: s for s in SCENARIOS}
