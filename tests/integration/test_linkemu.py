@@ -68,6 +68,7 @@ class Proc:
     """linkemu as its own process; listen/source ports parsed from its stderr banner."""
 
     def __init__(self, args):
+        self._pending = {}
         self.p = subprocess.Popen([sys.executable, LINKEMU, *args], stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True)
         line = self._readline(self.p.stderr, 10)
@@ -76,11 +77,21 @@ class Proc:
         self.listen = (HOST, int(words[words.index("on") + 1].rstrip(",").rsplit(":", 1)[1]))
         self.source = (HOST, int(words[words.index("from") + 1].rstrip(",").rsplit(":", 1)[1]))
 
-    @staticmethod
-    def _readline(f, timeout):
-        r, _, _ = select.select([f], [], [], timeout)
-        assert r, "linkemu printed nothing in time"
-        return f.readline()
+    def _readline(self, f, timeout):
+        # Lines are assembled here from the raw descriptor: select() on a pipe whose data
+        # Python's text buffer already holds would wait for nothing (two lines in one read).
+        fd = f.fileno()
+        buf = self._pending.get(fd, b"")
+        deadline = time.monotonic() + timeout
+        while b"\n" not in buf:
+            r, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
+            assert r, "linkemu printed nothing in time"
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            buf += chunk
+        line, _, self._pending[fd] = buf.partition(b"\n")
+        return line.decode()
 
     def stdout_lines(self, n, timeout=5):
         return [json.loads(self._readline(self.p.stdout, timeout)) for _ in range(n)]
