@@ -109,6 +109,7 @@ struct Entry {
     uint32_t home;  // table slot the key hashes to (for backward-shift deletion)
     uint32_t rec[kInstances];
     uint8_t count;
+    uint8_t recurred;  // the key has had two instances in the window at once (a HEARTBEAT...)
 };
 
 /// The latency offset between two members of a bond: t_hi - t_lo for one instance, signed.
@@ -202,7 +203,9 @@ private:
     bool in_scope(const mavbond_link* link);
     bool scope_allows(const mavbond_link* link) const;
     Key hash(const mavbond_frame* f) const;
-    Match match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t);
+    /// `timestamped`: the message carries time_boot_ms / time_usec, so its bytes never recur.
+    Match match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t,
+                bool timestamped);
     bool stale(uint32_t bond, const mavbond_frame* f);
 
     PairModel& pair(uint32_t bond, uint32_t a, uint32_t b) {
@@ -400,6 +403,7 @@ uint32_t Dedup::insert_entry(uint32_t bond, Key key) {
     en.h2 = key.h2;
     en.bond = bond;
     en.count = 0;
+    en.recurred = 0;
     en.home = table_home(key.h1, bond);
     uint32_t i = en.home;
     while (table_[i] != 0)
@@ -473,6 +477,8 @@ void Dedup::expire(uint64_t now) {
 void Dedup::add_instance(uint32_t e, uint32_t member, uint32_t link_id, uint64_t t) {
     Entry& en = entries_[e];
     uint8_t slot = en.count;
+    if (en.count > 0)
+        en.recurred = 1;
     if (en.count == kInstances) {
         // Forget this key's oldest instance; its ring record stays until expiry pops it.
         slot = 0;
@@ -520,7 +526,8 @@ void Dedup::learn(PairModel& p, int64_t sample) {
         p.samples++;
 }
 
-Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t) {
+Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t,
+                          bool timestamped) {
     Match m;
     uint32_t e = find(bond, key);
     if (e != kNone) {
@@ -549,6 +556,17 @@ Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key 
             }
         }
         int chosen = best >= 0 ? best : oldest;
+        if (chosen < 0 && timestamped && en.count == 1 && unseen == 1 && !en.recurred) {
+            // A timestamped sample's bytes never recur, so a later copy of its only instance
+            // is that instance, however late: a stalled link (a busy modem or CPU), not a new
+            // frame. Only later than the offset predicts; an early copy may be a new instance
+            // of a key that does recur (a test stream built of repeating cycles).
+            const Record& r = ring_[en.rec[0]];
+            const PairModel& p = pair(bond, r.first_member, member);
+            int64_t late = static_cast<int64_t>(t - r.t0) - predicted_skew(p, r.first_member, member);
+            if (p.samples >= kMinSamples && late > tolerance(p))
+                chosen = 0;
+        }
         if (en.count == 1 && unseen == 1) {
             // One instance in the window and this link has not had it: whichever way the
             // decision goes (even when it does not fit: the latency may have changed), the
@@ -649,7 +667,7 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
             notes->hash[1] = key.h2;
         }
         expire(t);
-        Match m = match(bond, member, from->id, key, t);
+        Match m = match(bond, member, from->id, key, t, f->timestamp_offset >= 0);
         if (m.duplicate) {
             if (notes) {
                 notes->flags |= MAVBOND_NOTE_DUPLICATE;

@@ -174,6 +174,28 @@ TEST_F(DedupTest, RepeatOnTheSameLinkPasses) {
     EXPECT_EQ(MAVBOND_PASS, feed(*b_, f, t + 512 * kMs));
 }
 
+TEST_F(DedupTest, AStalledCopyOfATimestampedSampleIsStillACopy) {
+    // Teach the pair a 30 ms offset, then stall link b by 400 ms: far outside the tolerance.
+    // A timestamped sample never recurs, so its late copy is still recognised and dropped
+    // (and drop_stale stays out of it: off here). A frame without a timestamp, which may
+    // recur, is not matched that far off its offset: the copy passes (fail open). That an
+    // early copy is never taken this way is what the heavy_loss scenario below proves.
+    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
+    uint64_t t = now();
+    for (uint32_t i = 0; i < 16; i++) {
+        Bytes f = v2(static_cast<uint8_t>(i), kAttitude, attitude_payload(i));
+        ASSERT_EQ(MAVBOND_PASS, feed(*a_, f, t + i * 10 * kMs));
+        ASSERT_EQ(MAVBOND_DROP, feed(*b_, f, t + i * 10 * kMs + 30 * kMs));
+    }
+    t += 200 * kMs;
+    Bytes sample = v2(20, kAttitude, attitude_payload(500));
+    Bytes heartbeat = v2(21, kHeartbeat, heartbeat_payload());
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, sample, t));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, heartbeat, t));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, sample, t + 430 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, heartbeat, t + 430 * kMs));
+}
+
 TEST_F(DedupTest, CopyAfterTheWindowPasses) {
     ASSERT_TRUE(create("window: 500ms"));
     Bytes f = v2(1, kAttitude, attitude_payload(1000));

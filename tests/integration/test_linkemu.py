@@ -195,6 +195,21 @@ def paced(streams, tail=0.3):
 
 # --- loss --------------------------------------------------------------------------------------
 
+
+def scheduler_lateness_ms(samples: int = 300, period: float = 0.002) -> tuple:
+    """How late this machine wakes a sleeper right now: (p50, p99, max) in ms. The emulator
+    cannot be more punctual than that, so the timing checks below allow it on top of their
+    own margin: on a quiet machine it is a fraction of a millisecond, on a busy shared one
+    tens of milliseconds, and a test that ignored it would judge the machine, not linkemu."""
+    late = []
+    for _ in range(samples):
+        t = time.monotonic()
+        select.select([], [], [], period)
+        late.append((time.monotonic() - t - period) * 1000)
+    late.sort()
+    return late[len(late) // 2], late[int(len(late) * 0.99)], late[-1]
+
+
 def test_bernoulli_loss_rate_within_bounds(emu_factory):
     n = 20000
     emu, a, b = emu_factory(seed=7, loss="1%", record_drops=True)
@@ -300,11 +315,13 @@ def test_delay_and_jitter_measured(emu_proc):
     print(f"delay 40ms + jitter 5ms uniform (up): p50 {pct(d_up, 50):.3f} "
           f"min {min(d_up):.3f} max {max(d_up):.3f} stdev {statistics.pstdev(d_up):.3f} ms "
           f"(uniform +-5: stdev 2.887)")
-    assert abs(pct(d_down, 50) - 40) < 2
-    assert pct(d_down, 99) < 40 + 20     # loose: a loaded CI machine schedules late
+    noise50, noise99, noise_max = scheduler_lateness_ms()
+    print(f"scheduler lateness now: p50 {noise50:.3f} p99 {noise99:.3f} max {noise_max:.3f} ms")
+    assert abs(pct(d_down, 50) - 40) < 2 + noise50
+    assert pct(d_down, 99) < 40 + 20 + noise99
     assert min(d_down) >= 40 - 0.05
-    assert abs(pct(d_up, 50) - 40) < 2
-    assert min(d_up) >= 35 - 0.05 and max(d_up) <= 45 + 10
+    assert abs(pct(d_up, 50) - 40) < 2 + noise50
+    assert min(d_up) >= 35 - 0.05 and max(d_up) <= 45 + 10 + noise_max
     assert 2.887 * 0.7 < statistics.pstdev(d_up) < 2.887 * 1.4
     a.close()
     b.close()
@@ -413,7 +430,9 @@ def test_rate_cap_throughput_and_queue_drops(emu_factory):
     assert abs(tput - cap) / cap < 0.03
     assert c["dropped_queue"] > 200
     assert len(rcv) + c["dropped_queue"] == 600
-    assert max(delays) < max_queue_delay + 15
+    noise50, noise99, noise_max = scheduler_lateness_ms()
+    print(f"scheduler lateness now: p50 {noise50:.3f} p99 {noise99:.3f} max {noise_max:.3f} ms")
+    assert max(delays) < max_queue_delay + 15 + noise_max
     # under the cap: nothing dropped, each frame takes about one serialisation time
     (s,) = paced([dict(src=a, dst=emu.listen_addr, rx=b, n=100, interval=1 / (0.5 * cap),
                        size=size)], tail=0.2)
@@ -422,7 +441,7 @@ def test_rate_cap_throughput_and_queue_drops(emu_factory):
     print(f"at {0.5 * cap:.0f}/s: {len(s['rcv'])} of 100 delivered, delay p50 "
           f"{pct(delays, 50):.2f} ms (serialisation {1e3 / cap:.2f} ms)")
     assert len(s["rcv"]) == 100 and c2["dropped_queue"] == c["dropped_queue"]
-    assert abs(pct(delays, 50) - 1e3 / cap) < 2
+    assert abs(pct(delays, 50) - 1e3 / cap) < 2 + noise50
 
 
 # --- both directions, process life -------------------------------------------------------------
@@ -512,7 +531,9 @@ def test_keeps_up_with_1000_datagrams_per_second_each_way(emu_proc):
               f"max {max(err):.3f} ms")
         assert len(rcv) == n
         assert got_rate > 950 and sent_rate > 950
-        assert pct(err, 50) < 2 and pct(err, 99) < 20
+        noise50, noise99, _ = scheduler_lateness_ms()
+        print(f"scheduler lateness now: p50 {noise50:.3f} p99 {noise99:.3f} ms")
+        assert pct(err, 50) < 2 + noise50 and pct(err, 99) < 20 + noise99
     p.p.send_signal(signal.SIGTERM)
     out, _ = p.p.communicate(timeout=5)
     c = [json.loads(x) for x in out.splitlines()]
