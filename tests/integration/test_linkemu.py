@@ -432,7 +432,8 @@ def test_rate_cap_throughput_and_queue_drops(emu_factory):
     assert len(rcv) + c["dropped_queue"] == 600
     noise50, noise99, noise_max = scheduler_lateness_ms()
     print(f"scheduler lateness now: p50 {noise50:.3f} p99 {noise99:.3f} max {noise_max:.3f} ms")
-    assert max(delays) < max_queue_delay + 15 + noise_max
+    # The queue bounds the delay; what the emulator's own scheduling added on top, it reports.
+    assert max(delays) < max_queue_delay + 15 + noise_max + c["late_max_ms"], c
     # under the cap: nothing dropped, each frame takes about one serialisation time
     (s,) = paced([dict(src=a, dst=emu.listen_addr, rx=b, n=100, interval=1 / (0.5 * cap),
                        size=size)], tail=0.2)
