@@ -24,6 +24,14 @@ sys.path.insert(0, str(TOOLS))
 
 from linkemu import LinkEmulator  # noqa: E402
 
+# These tests judge the emulator's timing accuracy, on real processes sharing the machine's
+# two CPUs: a stall of the machine (seen on the shared VM that runs CI) can fail one that the
+# code would pass.
+# Each attempt asserts everything; a test is retried at most twice, and scripts/test lists the
+# reruns (pytest -rR), so a flaky result is visible, never hidden.
+pytestmark = pytest.mark.flaky(reruns=2)
+
+
 HOST = "127.0.0.1"
 LINKEMU = str(TOOLS / "linkemu.py")
 HDR = struct.Struct("!Id")     # index, send time (time.monotonic(), system-wide clock)
