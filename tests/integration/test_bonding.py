@@ -24,9 +24,9 @@ from bonding_helpers import (Emu, Gateway, Receiver, content_key, gcs_hello, mul
                              udp_sock, with_seq, Ticker)
 from synth import ardupilot_stream
 
-# These tests judge links through emulators and two gateways, on real processes sharing the machine's
-# two CPUs: a stall of the machine (seen on the shared VM that runs CI) can fail one that the
-# code would pass.
+# These tests judge links through emulators and two gateways, on real processes sharing the
+# machine's two CPUs: a stall of the machine (seen on the shared VM that runs CI) can fail one
+# that the code would pass.
 # Each attempt asserts everything; a test is retried at most twice, and scripts/test lists the
 # reruns (pytest -rR), so a flaky result is visible, never hidden.
 pytestmark = pytest.mark.flaky(reruns=2)
