@@ -92,7 +92,6 @@ public:
 
     /// The time cached at the start of this round (one clock read per batch).
     TimePoint now() const { return now_; }
-    TimePoint refresh_now() { return now_ = Clock::now(); }
 
 private:
     struct WatchRecord {

@@ -35,7 +35,6 @@ public:
     ~TcpServer() override;
     const char* kind() const override { return "tcp-server"; }
     EndpointStats total_stats() const override;
-    size_t client_count() const { return clients_.size(); }
 
 private:
     friend class TcpConnection;

@@ -64,7 +64,6 @@ public:
     ~UdpServer() override;
     const char* kind() const override { return "udp-server"; }
     EndpointStats total_stats() const override;
-    size_t peer_count() const { return peers_.size(); }
     int fd() const { return fd_.get(); }
     /// Watches for EPOLLOUT while some peer has a backlog.
     void update_write_interest();
