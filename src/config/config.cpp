@@ -9,6 +9,7 @@
 #include <arpa/inet.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <charconv>
 #include <cstdio>
@@ -754,6 +755,41 @@ Result<Config> load_config(const std::string& path) {
     if (read_errno != 0)
         return make_error(path + ": cannot read: " + std::strerror(read_errno));
     return parse_config(text, path);
+}
+
+namespace {
+
+// Copies with every SourceMark cleared: a declaration moved to another line is the same one.
+EndpointConfig unmarked(EndpointConfig c) {
+    c.mark = {};
+    return c;
+}
+BondConfig unmarked(BondConfig c) {
+    c.mark = {};
+    return c;
+}
+FilterConfig unmarked(FilterConfig c) {
+    c.mark = {};
+    for (auto& o : c.options)
+        o.mark = o.value_mark = {};
+    return c;
+}
+template <typename T>
+bool same_unmarked(const std::vector<T>& a, const std::vector<T>& b) {
+    return std::equal(a.begin(), a.end(), b.begin(), b.end(),
+                      [](const T& x, const T& y) { return unmarked(x) == unmarked(y); });
+}
+
+}  // namespace
+
+bool same_settings(const EndpointConfig& a, const EndpointConfig& b) {
+    return unmarked(a) == unmarked(b);
+}
+bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfig>& b) {
+    return same_unmarked(a, b);
+}
+bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterConfig>& b) {
+    return same_unmarked(a, b);
 }
 
 }  // namespace mavbond

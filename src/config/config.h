@@ -22,6 +22,7 @@ struct SourceMark {
     std::string file;
     int line = 0;    // 1-based
     int column = 0;  // 1-based
+    bool operator==(const SourceMark&) const = default;
 };
 
 /// Allow/block lists of message ids (given in the YAML as ids or names such as HEARTBEAT).
@@ -29,6 +30,7 @@ struct SourceMark {
 struct MessageFilterConfig {
     std::vector<uint32_t> allow;
     std::vector<uint32_t> block;
+    bool operator==(const MessageFilterConfig&) const = default;
 };
 
 enum class EndpointType { Udp, Tcp, Uart };
@@ -51,12 +53,14 @@ struct EndpointConfig {
     MessageFilterConfig filter_out;            // keys allow_out / block_out
     std::string bond;                          // bond name ("" = none); used by the bonding layer
     SourceMark mark;                           // where this endpoint was declared
+    bool operator==(const EndpointConfig&) const = default;
 };
 
 struct BondConfig {
     std::string name;
     enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
     SourceMark mark;
+    bool operator==(const BondConfig&) const = default;
 };
 
 /// One `filters:` entry. The plugin's own options are kept as raw key/value text with their
@@ -73,9 +77,11 @@ struct FilterConfig {
         bool is_sequence = false;
         SourceMark mark;                 // the key
         SourceMark value_mark;           // the value (the key's mark when the value is empty)
+        bool operator==(const Option&) const = default;
     };
     std::vector<Option> options;
     SourceMark mark;
+    bool operator==(const FilterConfig&) const = default;
 };
 
 struct Config {
@@ -90,6 +96,12 @@ struct Config {
     std::vector<BondConfig> bonds;
     std::vector<FilterConfig> filters;
 };
+
+/// Whether two declarations mean the same, wherever in their files they were written: what a
+/// reload compares to decide what must restart.
+bool same_settings(const EndpointConfig& a, const EndpointConfig& b);
+bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfig>& b);
+bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterConfig>& b);
 
 /// Loads and validates a config file. The error's message is "file:line:column: what".
 Result<Config> load_config(const std::string& path);

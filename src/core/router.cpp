@@ -8,8 +8,27 @@ namespace mavbond {
 
 Router::Router(Duration route_timeout, const std::vector<BondConfig>& bonds)
     : route_timeout_(route_timeout) {
+    replace_bonds(bonds);
+}
+
+void Router::replace_bonds(const std::vector<BondConfig>& bonds) {
+    bonds_.clear();
     for (const auto& b : bonds)
         bonds_.push_back(Bond{b.name, b.tx == BondConfig::Tx::Active});
+    for (size_t id = 0; id < endpoints_.size(); id++) {
+        if (endpoints_[id])
+            bond_of_[id] = bond_index(endpoints_[id]->config().bond);
+    }
+}
+
+void Router::set_filter(FrameFilter* filter) {
+    filter_ = filter;
+    if (!filter_)
+        return;
+    for (Endpoint* e : endpoints_) {
+        if (e)
+            filter_->on_endpoint(*e, true);
+    }
 }
 
 uint32_t Router::bond_index(const std::string& name) const {
@@ -35,7 +54,7 @@ void Router::add(Endpoint& endpoint) {
         *free_slot = &endpoint;
         routes_[id].clear();
     }
-    bond_of_[id] = endpoint.config().bond.empty() ? kNoBond : bond_index(endpoint.config().bond);
+    bond_of_[id] = bond_index(endpoint.config().bond);
     endpoint.set_id(id);
     if (filter_)
         filter_->on_endpoint(endpoint, true);

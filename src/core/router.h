@@ -60,7 +60,12 @@ public:
 
     /// Forgets routes not heard for route_timeout.
     void expire_routes(TimePoint now);
-    void set_filter(FrameFilter* filter) { filter_ = filter; }
+    /// Puts `filter` on the data path (nullptr: none); it hears of every endpoint registered.
+    void set_filter(FrameFilter* filter);
+    void set_route_timeout(Duration timeout) { route_timeout_ = timeout; }
+    /// Replaces the bonds (a reload) and re-reads each endpoint's bond from its config. Active
+    /// links and switch counts start afresh.
+    void replace_bonds(const std::vector<BondConfig>& bonds);
 
     const std::vector<Endpoint*>& endpoints() const { return endpoints_; }
     const std::vector<Bond>& bonds() const { return bonds_; }

@@ -34,7 +34,7 @@ bool MessageFilter::passes(uint32_t msgid) const {
 
 Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode)
     : config_(config), name_(std::move(name)), tx_(mode, config.tx_queue_bytes),
-      filter_in_(config.filter_in), filter_out_(config.filter_out) {}
+      filter_in_(config_.filter_in), filter_out_(config_.filter_out) {}
 
 Endpoint::~Endpoint() = default;
 

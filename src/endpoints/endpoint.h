@@ -65,7 +65,8 @@ public:
     using Ptr = std::unique_ptr<Endpoint>;
     static constexpr uint32_t kNoId = UINT32_MAX;
 
-    /// `config` must outlive the endpoint (main keeps the Config).
+    /// The endpoint keeps its own copy of `config`: a reload replaces the daemon's Config
+    /// while the endpoints it did not change keep running.
     Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode);
     virtual ~Endpoint();
     Endpoint(const Endpoint&) = delete;
@@ -114,7 +115,7 @@ protected:
     EndpointStats stats_;
 
 private:
-    const EndpointConfig& config_;
+    const EndpointConfig config_;  // before the filters, which point into it
     std::string name_;
     uint32_t id_ = kNoId;
     TxQueue tx_;
@@ -122,6 +123,9 @@ private:
     MessageFilter filter_out_;
 };
 
+/// Builds one endpoint of `config` (whose global settings it takes).
+Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& endpoint, const Config& config,
+                                    EventLoop& loop, Router& router);
 /// Builds every endpoint the config declares. Servers bind now (a failure is returned);
 /// UARTs and TCP clients that cannot open yet retry in the background.
 Result<std::vector<Endpoint::Ptr>> make_endpoints(const Config& config, EventLoop& loop,

@@ -4,7 +4,6 @@
 #include "endpoints/udp_endpoint.h"
 
 namespace mavbond {
-namespace {
 
 Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& ep, const Config& config,
                                     EventLoop& loop, Router& router) {
@@ -26,8 +25,6 @@ Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& ep, const Config& conf
     }
     return make_error("unknown endpoint type");
 }
-
-}  // namespace
 
 Result<std::vector<Endpoint::Ptr>> make_endpoints(const Config& config, EventLoop& loop,
                                                   Router& router) {

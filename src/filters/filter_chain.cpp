@@ -43,7 +43,8 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
         if (!ep.bond.empty())
             chain->priority_[ep.name] = members[ep.bond]++;
     }
-    for (const auto& entry : config.filters) {
+    chain->entries_ = config.filters;  // never resized after this: instances point into it
+    for (const auto& entry : chain->entries_) {
         if (!entry.enabled)
             continue;
         std::string at = where(entry.mark) + ": filter '" + entry.plugin + "': ";

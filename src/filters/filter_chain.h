@@ -59,6 +59,7 @@ private:
 
     EventLoop& loop_;
     Router& router_;
+    std::vector<FilterConfig> entries_;  // the chain's own copy: a reload may replace the Config
     std::vector<std::unique_ptr<LoadedPlugin>> plugins_;  // destroyed after the instances
     std::vector<std::unique_ptr<Instance>> instances_;
     std::deque<LinkView> links_;  // index = endpoint id; a deque keeps the views where they are

@@ -558,5 +558,31 @@ INSTANTIATE_TEST_SUITE_P(Cases, BadConfig, testing::ValuesIn(kBadCases),
                              return std::string(param_info.param.label);
                          });
 
+// What a reload compares: the meaning of a declaration, not where in the file it was written.
+TEST(SameSettings, IgnoresWhereButNotWhat) {
+    const char* link2 = "  - {name: l2, type: udp, mode: server, address: 127.0.0.1:9, bond: b}\n";
+    auto a = parse(("endpoints:\n  - {name: a, type: udp, mode: server, address: 127.0.0.1:1, bond: b}\n" +
+                    std::string(link2) + "bonds:\n  - {name: b}\nfilters:\n  - {plugin: dedup, window: 2s}\n")
+                       .c_str());
+    auto moved = parse(("# a comment moves everything down a line\nendpoints:\n"
+                        "  -   {name: a, type: udp, mode: server, address: 127.0.0.1:1, bond: b}\n" +
+                        std::string(link2) + "bonds:\n  -  {name: b}\nfilters:\n  -  {plugin: dedup,  window: 2s}\n")
+                           .c_str());
+    auto changed = parse(("endpoints:\n  - {name: a, type: udp, mode: server, address: 127.0.0.1:2, bond: b}\n" +
+                          std::string(link2) + "bonds:\n  - {name: b, tx: active}\nfilters:\n"
+                          "  - {plugin: dedup, window: 3s}\n").c_str());
+    for (auto* r : {&a, &moved, &changed})
+        EXPECT_TRUE(*r) << (*r ? "" : r->error().message);
+    ASSERT_TRUE(a && moved && changed);
+    ASSERT_NE(a->endpoints[0].mark, moved->endpoints[0].mark);
+    EXPECT_TRUE(same_settings(a->endpoints[0], moved->endpoints[0]));
+    EXPECT_TRUE(same_settings(a->bonds, moved->bonds));
+    EXPECT_TRUE(same_settings(a->filters, moved->filters));
+    EXPECT_FALSE(same_settings(a->endpoints[0], changed->endpoints[0]));
+    EXPECT_FALSE(same_settings(a->bonds, changed->bonds));
+    EXPECT_FALSE(same_settings(a->filters, changed->filters));
+    EXPECT_FALSE(same_settings(a->filters, {}));
+}
+
 }  // namespace
 }  // namespace mavbond

@@ -1,0 +1,292 @@
+#include "mavbond/daemon.h"
+
+#include <sys/resource.h>
+
+#include <csignal>
+#include <cstring>
+
+#include "core/log.h"
+#include "mavbond_build_config.h"
+
+namespace mavbond {
+namespace {
+
+std::string counters_line(const Endpoint& e) {
+    std::string line = "stats endpoint=" + e.name() + " kind=" + e.kind();
+    for_each_counter(e.total_stats(), [&line](const char* name, uint64_t value) {
+        line += std::string(" ") + name + "=" + std::to_string(value);
+    });
+    return line;
+}
+
+/// Each bonded endpoint's (name, bond), in config order: the filters number a bond's links
+/// by this order, so a change in it restarts them.
+std::vector<std::pair<std::string, std::string>> bond_members(const Config& c) {
+    std::vector<std::pair<std::string, std::string>> out;
+    for (const auto& ep : c.endpoints) {
+        if (!ep.bond.empty())
+            out.emplace_back(ep.name, ep.bond);
+    }
+    return out;
+}
+
+const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
+    for (const auto& ep : c.endpoints) {
+        if (ep.name == name)
+            return &ep;
+    }
+    return nullptr;
+}
+
+}  // namespace
+
+void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval) {
+    double secs = std::chrono::duration<double>(interval).count();
+    for (const auto& e : endpoints) {
+        EndpointStats now = e->total_stats();
+        EndpointStats& was = last_[e.get()];
+        std::string what;
+        auto add = [&what](uint64_t delta, const char* label) {
+            if (delta == 0)
+                return;
+            if (!what.empty())
+                what += ", ";
+            what += std::to_string(delta) + " " + label;
+        };
+        add(now.rx.crc_errors - was.rx.crc_errors, "CRC errors");
+        add(now.rx.garbage_bytes - was.rx.garbage_bytes, "garbage bytes");
+        add(now.rx.unknown_ids - was.rx.unknown_ids, "unknown message ids");
+        add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
+        add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
+        add(now.tx_errors - was.tx_errors, "write errors");
+        if (!what.empty())
+            log_notice("[%s] %s in the last %.0fs", e->name().c_str(), what.c_str(), secs);
+        was = now;
+    }
+}
+
+Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
+    : opts_(opts), loop_(loop), config_(std::move(config)),
+      router_(config_->route_timeout, config_->bonds) {}
+
+Daemon::~Daemon() {
+    // Endpoints go away because the daemon stops, not because links fail: the filters must
+    // not take it for an outage (a link switch logged at every shutdown).
+    router_.set_filter(nullptr);
+    endpoints_.clear();
+}
+
+Result<std::unique_ptr<Config>> Daemon::load(const DaemonOptions& opts) {
+    auto config = load_config(opts.config_path);
+    if (!config)
+        return config.error();
+    auto c = std::make_unique<Config>(std::move(config.value()));
+    if (!opts.log_level.empty())
+        c->log_level = *parse_log_level(opts.log_level);  // checked in prepare()
+    if (!opts.plugin_dir.empty())
+        c->plugin_dir = opts.plugin_dir;
+    if (c->plugin_dir.empty())
+        c->plugin_dir = MAVBOND_PLUGIN_DIR;
+    return c;
+}
+
+std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
+    const DaemonOptions& opts, EventLoop& loop) {
+    if (!opts.log_level.empty() && !parse_log_level(opts.log_level))
+        return StartError{64, "mavbond: unknown log level '" + opts.log_level + "'"};
+    auto config = load(opts);
+    if (!config)
+        return StartError{kExitConfig, config.error().message};
+    std::unique_ptr<Daemon> d(new Daemon(opts, loop, std::move(config.value())));
+    log_set_level(opts.check_config ? LogLevel::Warning : d->config_->log_level);
+    // The chain comes before the endpoints (it hears of each one as it registers) and goes
+    // after them. --check-config builds it too: plugin options are part of the config.
+    auto chain = FilterChain::create(*d->config_, d->config_->plugin_dir, loop, d->router_);
+    if (!chain)
+        return StartError{kExitConfig, chain.error().message};
+    d->chain_ = std::move(chain.value());
+    d->router_.set_filter(d->chain_.get());
+    return d;
+}
+
+std::optional<Daemon::StartError> Daemon::start() {
+    signal(SIGPIPE, SIG_IGN);  // a vanished TCP peer is an error code, not a death
+    auto signals = {
+        std::pair<int, EventLoop::SignalHandler>{SIGINT, [this](int signo) {
+             log_notice("%s: stopping", strsignal(signo));
+             loop_.request_exit(0);
+         }},
+        {SIGTERM, [this](int signo) {
+             log_notice("%s: stopping", strsignal(signo));
+             loop_.request_exit(0);
+         }},
+        {SIGHUP, [this](int) { reload(); }},
+        {SIGUSR1, [this](int) { dump_counters(); }},
+    };
+    for (const auto& [sig, handler] : signals) {
+        if (auto r = loop_.on_signal(sig, handler); !r)
+            return StartError{kExitOsError, r.error().message};
+    }
+    auto endpoints = make_endpoints(*config_, loop_, router_);
+    if (!endpoints)
+        return StartError{kExitOsError, endpoints.error().message};
+    endpoints_ = std::move(endpoints.value());
+    started_ = loop_.now();
+    open_status_socket();
+    // The timers read the current config each time, so a reload changes their periods.
+    report_timer_ = loop_.schedule(config_->report_interval, [this] {
+        report_.run(endpoints_, config_->report_interval);
+        return config_->report_interval;
+    });
+    route_timer_ = loop_.schedule(seconds(1), [this] {
+        router_.expire_routes(loop_.now());
+        return Duration(seconds(1));
+    });
+    // Anything still queued (a backlog waiting for EPOLLOUT is flushed by its own watch).
+    loop_.add_round_hook([this] { router_.end_batch(); });
+    log_notice("mavbond %s running with %zu endpoints from %s", MAVBOND_VERSION,
+               endpoints_.size(), opts_.config_path.c_str());
+    return std::nullopt;
+}
+
+int Daemon::run() {
+    int code = loop_.run();
+    router_.set_filter(nullptr);  // see ~Daemon
+    dump_counters();
+    rusage ru{};
+    getrusage(RUSAGE_SELF, &ru);
+    log_notice("exit: routed %llu frames, %llu without a destination; peak RSS %ld KiB",
+               (unsigned long long)router_.frames_routed(),
+               (unsigned long long)router_.frames_without_destination(), ru.ru_maxrss);
+    return code;
+}
+
+void Daemon::open_status_socket() {
+    status_.reset();
+    if (config_->status_socket.empty())
+        return;
+    auto st = StatusSocket::open(config_->status_socket, loop_, [this] { return status_document(); });
+    // Telemetry matters more than the status: without its socket the daemon still routes.
+    if (st)
+        status_ = std::move(st.value());
+    else
+        log_warning("%s: mavbondctl cannot reach this daemon", st.error().message.c_str());
+}
+
+void Daemon::dump_counters() const {
+    for (const auto& e : endpoints_)
+        log_notice("%s", counters_line(*e).c_str());
+}
+
+bool Daemon::reload() {
+    log_notice("SIGHUP: reloading %s", opts_.config_path.c_str());
+    auto loaded = load(opts_);
+    if (!loaded) {
+        log_error("reload refused, the running configuration stays: %s",
+                  loaded.error().message.c_str());
+        return false;
+    }
+    std::unique_ptr<Config> next = std::move(loaded.value());
+    Config& old = *config_;
+
+    // The filters restart when anything they depend on changed: their entries, the bonds, the
+    // order of the bonds' links, the plugin directory. The new chain is built before anything
+    // is touched, so a plugin that will not load refuses the whole reload.
+    bool bonds_changed = !same_settings(old.bonds, next->bonds);
+    bool chain_changed = bonds_changed || !same_settings(old.filters, next->filters) ||
+                         bond_members(old) != bond_members(*next) ||
+                         old.plugin_dir != next->plugin_dir;
+    std::unique_ptr<FilterChain> next_chain;
+    if (chain_changed) {
+        auto chain = FilterChain::create(*next, next->plugin_dir, loop_, router_);
+        if (!chain) {
+            log_error("reload refused, the running configuration stays: %s",
+                      chain.error().message.c_str());
+            return false;
+        }
+        next_chain = std::move(chain.value());
+    }
+
+    // An endpoint keeps running when its declaration means the same as before.
+    auto unchanged = [&](const Endpoint& e) {
+        const EndpointConfig* now = find_endpoint(*next, e.config().name);
+        return now && same_settings(*now, e.config()) &&
+               old.unknown_messages == next->unknown_messages;
+    };
+    std::map<std::string, Endpoint::Ptr> kept;
+    size_t stopped = 0;
+    for (auto& e : endpoints_) {
+        if (unchanged(*e)) {
+            kept[e->config().name] = std::move(e);
+        } else {
+            report_.forget(*e);
+            e.reset();  // closes its sockets before a replacement binds the same address
+            stopped++;
+        }
+    }
+    endpoints_.clear();
+
+    if (next_chain) {
+        router_.set_filter(nullptr);
+        chain_ = std::move(next_chain);
+        router_.replace_bonds(next->bonds);
+        router_.set_filter(chain_.get());  // the new chain hears of every endpoint kept
+    }
+    router_.set_route_timeout(next->route_timeout);
+
+    size_t started = 0, failed = 0;
+    for (const auto& ep : next->endpoints) {
+        if (auto k = kept.find(ep.name); k != kept.end()) {
+            endpoints_.push_back(std::move(k->second));
+            continue;
+        }
+        auto e = make_endpoint(ep, *next, loop_, router_);
+        if (!e) {
+            // The rest of the new config stands; this endpoint is reported and left out.
+            log_error("reload: endpoint '%s': %s", ep.name.c_str(), e.error().message.c_str());
+            failed++;
+            continue;
+        }
+        endpoints_.push_back(std::move(e.value()));
+        started++;
+    }
+
+    bool status_moved = old.status_socket != next->status_socket;
+    config_ = std::move(next);
+    log_set_level(config_->log_level);
+    if (status_moved)
+        open_status_socket();
+    log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
+               kept.size(), stopped, started,
+               failed ? (", " + std::to_string(failed) + " failed").c_str() : "",
+               chain_changed ? "restarted" : "kept");
+    return true;
+}
+
+std::string Daemon::status_document() const {
+    TimePoint now = loop_.now();
+    std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
+                      std::to_string(std::chrono::duration_cast<seconds>(now - started_).count()) +
+                      ",\"endpoints\":[";
+    for (size_t i = 0; i < endpoints_.size(); i++) {
+        const Endpoint& e = *endpoints_[i];
+        out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
+               "\",\"bond\":\"" + e.config().bond + "\"";
+        for_each_counter(e.total_stats(), [&out](const char* name, uint64_t value) {
+            out += std::string(",\"") + name + "\":" + std::to_string(value);
+        });
+        out += "}";
+    }
+    out += "],\"bonds\":[";
+    for (size_t i = 0; i < router_.bonds().size(); i++) {
+        const Router::Bond& b = router_.bonds()[i];
+        const Endpoint* active = b.active_link < router_.endpoints().size()
+                                     ? router_.endpoints()[b.active_link] : nullptr;
+        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
+               (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
+               (active ? active->name() : "") + "\",\"switches\":" + std::to_string(b.switches) + "}";
+    }
+    return out + "],\"filters\":" + chain_->status_json() + "}";
+}
+
+}  // namespace mavbond

@@ -1,0 +1,95 @@
+// The running gateway: the config, the router, the filter chain, the endpoints and the
+// daemon's own services (status socket, problem reports), on one event loop. SIGHUP reloads
+// the config: what did not change keeps running, untouched.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "config/config.h"
+#include "core/event_loop.h"
+#include "core/router.h"
+#include "core/status_socket.h"
+#include "endpoints/endpoint.h"
+#include "filters/filter_chain.h"
+
+namespace mavbond {
+
+constexpr int kExitSoftware = 70;  // EX_SOFTWARE
+constexpr int kExitOsError = 71;   // EX_OSERR: a socket that cannot be bound, ...
+
+/// What the command line says on top of the config file.
+struct DaemonOptions {
+    std::string config_path;
+    std::string log_level;   // "" = the config's
+    std::string plugin_dir;  // "" = the config's, else the compiled-in default
+    bool check_config = false;  // only validate: warnings and errors, no progress lines
+};
+
+/// Per-frame problems are never logged one by one: every report_interval, one line per
+/// endpoint that had any says how many of each.
+class ProblemReport {
+public:
+    void run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval);
+    /// Forgets an endpoint that goes away (a new one by its name starts from zero).
+    void forget(const Endpoint& endpoint) { last_.erase(&endpoint); }
+
+private:
+    std::map<const Endpoint*, EndpointStats> last_;
+};
+
+class Daemon {
+public:
+    /// A failure to start, with the exit code it means.
+    struct StartError {
+        int exit_code;
+        std::string message;
+    };
+
+    /// Loads the config, applies the command line and validates everything, plugins included.
+    /// Nothing is opened yet: --check-config stops here.
+    static std::variant<std::unique_ptr<Daemon>, StartError> prepare(const DaemonOptions& opts,
+                                                                    EventLoop& loop);
+    ~Daemon();
+
+    const Config& config() const { return *config_; }
+    size_t filter_count() const { return chain_->size(); }
+
+    /// Opens the endpoints and the daemon's services and installs the signal handlers.
+    std::optional<StartError> start();
+    /// Runs the loop until SIGINT/SIGTERM; returns the exit code.
+    int run();
+
+    /// Re-reads the config file and applies what changed (SIGHUP). A config that does not load,
+    /// or whose filters cannot be created, is refused and the running one kept. Returns whether
+    /// the new config was applied.
+    bool reload();
+
+    /// Every endpoint's counters, the bonds and each filter's status, as one JSON document.
+    std::string status_document() const;
+
+private:
+    Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config);
+    /// Loads the file and applies the command line's overrides.
+    static Result<std::unique_ptr<Config>> load(const DaemonOptions& opts);
+    void open_status_socket();
+    void dump_counters() const;
+
+    DaemonOptions opts_;
+    EventLoop& loop_;
+    std::unique_ptr<Config> config_;
+    Router router_;
+    std::unique_ptr<FilterChain> chain_;
+    std::vector<Endpoint::Ptr> endpoints_;  // config order
+    std::unique_ptr<StatusSocket> status_;
+    ProblemReport report_;
+    EventLoop::Timer report_timer_;
+    EventLoop::Timer route_timer_;
+    TimePoint started_{};
+};
+
+}  // namespace mavbond
