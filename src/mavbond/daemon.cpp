@@ -165,7 +165,8 @@ void Daemon::open_status_socket() {
     status_.reset();
     if (config_->status_socket.empty())
         return;
-    auto st = StatusSocket::open(config_->status_socket, loop_, [this] { return status_document(); });
+    auto st = StatusSocket::open(config_->status_socket, loop_,
+                                 [this] { return status_document(); });
     // Telemetry matters more than the status: without its socket the daemon still routes.
     if (st)
         status_ = std::move(st.value());
@@ -284,7 +285,8 @@ std::string Daemon::status_document() const {
                                      ? router_.endpoints()[b.active_link] : nullptr;
         out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
                (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
-               (active ? active->name() : "") + "\",\"switches\":" + std::to_string(b.switches) + "}";
+               (active ? active->name() : "") +
+               "\",\"switches\":" + std::to_string(b.switches) + "}";
     }
     return out + "],\"filters\":" + chain_->status_json() + "}";
 }

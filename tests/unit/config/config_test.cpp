@@ -560,17 +560,18 @@ INSTANTIATE_TEST_SUITE_P(Cases, BadConfig, testing::ValuesIn(kBadCases),
 
 // What a reload compares: the meaning of a declaration, not where in the file it was written.
 TEST(SameSettings, IgnoresWhereButNotWhat) {
-    const char* link2 = "  - {name: l2, type: udp, mode: server, address: 127.0.0.1:9, bond: b}\n";
-    auto a = parse(("endpoints:\n  - {name: a, type: udp, mode: server, address: 127.0.0.1:1, bond: b}\n" +
-                    std::string(link2) + "bonds:\n  - {name: b}\nfilters:\n  - {plugin: dedup, window: 2s}\n")
-                       .c_str());
-    auto moved = parse(("# a comment moves everything down a line\nendpoints:\n"
-                        "  -   {name: a, type: udp, mode: server, address: 127.0.0.1:1, bond: b}\n" +
-                        std::string(link2) + "bonds:\n  -  {name: b}\nfilters:\n  -  {plugin: dedup,  window: 2s}\n")
-                           .c_str());
-    auto changed = parse(("endpoints:\n  - {name: a, type: udp, mode: server, address: 127.0.0.1:2, bond: b}\n" +
-                          std::string(link2) + "bonds:\n  - {name: b, tx: active}\nfilters:\n"
-                          "  - {plugin: dedup, window: 3s}\n").c_str());
+    // One config three ways: as written, shifted by a comment and extra spaces, and changed.
+    auto config = [](const char* head, const char* address, const char* bond, const char* window) {
+        return parse((std::string(head) + "endpoints:\n"
+                      "  -   {name: a, type: udp, mode: server, address: " + address +
+                      ", bond: b}\n"
+                      "  - {name: l2, type: udp, mode: server, address: 127.0.0.1:9, bond: b}\n"
+                      "bonds:\n  - {name: b" + bond + "}\n"
+                      "filters:\n  -  {plugin: dedup,  window: " + window + "}\n").c_str());
+    };
+    auto a = config("", "127.0.0.1:1", "", "2s");
+    auto moved = config("# a comment moves everything down a line\n", "127.0.0.1:1", "", "2s");
+    auto changed = config("", "127.0.0.1:2", ", tx: active", "3s");
     for (auto* r : {&a, &moved, &changed})
         EXPECT_TRUE(*r) << (*r ? "" : r->error().message);
     ASSERT_TRUE(a && moved && changed);
