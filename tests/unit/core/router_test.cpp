@@ -234,5 +234,20 @@ TEST_F(BondRouterTest, ActiveBondSendsOnTheActiveLinkOnly) {
     EXPECT_EQ(1u, router_.bonds()[0].switches);
 }
 
+TEST_F(BondRouterTest, InjectedFrameGoesEverywhereTheTxPolicyAllows) {
+    make(BondConfig::Tx::Active);
+    router_.inject(frame(1, 191), now_);
+    EXPECT_EQ(1u, radio().sent.size()) << "no active link chosen yet: every member";
+    EXPECT_EQ(1u, lte().sent.size());
+    EXPECT_EQ(1u, ground().sent.size());
+    EXPECT_FALSE(router_.knows(ground(), 1, 191)) << "a local frame teaches no route";
+    ASSERT_TRUE(router_.set_active_link(0, radio().id()));
+    clear_sent();
+    router_.inject(frame(1, 191), now_);  // flushed by inject itself: no end_batch()
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(0u, lte().sent.size());
+    EXPECT_EQ(1u, ground().sent.size());
+}
+
 }  // namespace
 }  // namespace mavbond
