@@ -11,11 +11,14 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
+#include "core/link_events.h"
+#include "core/local_source.h"
 #include "core/log.h"
 #include "core/router.h"
 #include "core/status_socket.h"
 #include "endpoints/endpoint.h"
 #include "filters/filter_chain.h"
+#include "filters/renumber_stage.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -187,7 +190,9 @@ int run_daemon(const Options& opts) {
         fprintf(stderr, "%s\n", chain.error().message.c_str());
         return kExitConfig;
     }
-    router.set_filter(chain.value().get());
+    // Bonds with `renumber: true` see the chain through the renumbering stage.
+    RenumberStage renumber(*chain.value(), router, config->bonds);
+    router.set_filter(renumber.active() ? static_cast<FrameFilter*>(&renumber) : chain.value().get());
     if (opts.check_config) {
         printf("%s: OK (%zu endpoints, %zu bonds, %zu filters)\n", opts.config_path.c_str(),
                config->endpoints.size(), config->bonds.size(), chain.value()->size());
@@ -239,6 +244,12 @@ int run_daemon(const Options& opts) {
         router.expire_routes(ev.now());
         return Duration(seconds(1));
     });
+    // mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
+    LocalSource local_source(config->identity, ev, router);
+    std::unique_ptr<LinkEventMonitor> link_events;
+    if (config->link_events.enabled)
+        link_events = std::make_unique<LinkEventMonitor>(config->link_events, *endpoints, router,
+                                                         ev, local_source);
     // Anything still queued (a backlog waiting for EPOLLOUT is flushed by its own watch).
     ev.add_round_hook([&router] { router.end_batch(); });
 
@@ -249,6 +260,7 @@ int run_daemon(const Options& opts) {
     // filters must not take it for an outage (a link switch logged at every shutdown).
     router.set_filter(nullptr);
     dump_counters();
+    renumber.log_summary();
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
     log_notice("exit: routed %llu frames, %llu without a destination; peak RSS %ld KiB",
