@@ -45,7 +45,8 @@ TEST_P(ShippedConfig, Loads) {
 
 INSTANTIATE_TEST_SUITE_P(Files, ShippedConfig,
                          testing::Values("conf/mavbond.yaml", "conf/examples/air-side.yaml",
-                                         "conf/examples/ground-side.yaml"));
+                                         "conf/examples/ground-side.yaml",
+                                         "conf/examples/link-events.yaml"));
 
 TEST(ShippedConfig, DefaultIsHarmless) {
     auto config = load_config(source_root() + "/conf/mavbond.yaml");
