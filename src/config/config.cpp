@@ -171,6 +171,9 @@ private:
     void parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const;
     void parse_bond(const YAML::Node& node, size_t index);
     void parse_filter(const YAML::Node& node, size_t index);
+    void parse_identity(const Entry& section);
+    void parse_link_events(const Entry& section);
+    uint8_t mavlink_id(const Entry& e, const std::string& ctx) const;
     void cross_check();
 
     std::string name_;
@@ -179,6 +182,7 @@ private:
     std::map<std::string, YAML::Mark> bond_names_;
     std::vector<BondRef> bond_refs_;
     std::vector<ScopeRef> scope_refs_;
+    std::vector<std::pair<std::string, YAML::Mark>> renumber_refs_;  // bond, its `renumber`
 };
 
 void Parser::check_keys(const MapView& view, const std::string& ctx,
@@ -311,7 +315,7 @@ Config Parser::parse(const YAML::Node& root) {
 
     static const std::set<std::string_view> kTopKeys = {
         "log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
-        "status_socket", "endpoints", "bonds", "filters"};
+        "status_socket", "endpoints", "bonds", "filters", "identity", "link_events"};
     MapView view = make_view(root);
     check_keys(view, "", &kTopKeys);
 
@@ -355,6 +359,10 @@ Config Parser::parse(const YAML::Node& root) {
         for (const auto& node : sequence(*e, "", false))
             parse_filter(node, ++index);
     }
+    if (const Entry* e = view.find("identity"))
+        parse_identity(*e);
+    if (const Entry* e = view.find("link_events"))
+        parse_link_events(*e);
     cross_check();
     return std::move(config_);
 }
@@ -549,7 +557,7 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
                                              "' (allowed characters: A-Z a-z 0-9 _ . -)");
     }
     ctx = "bond '" + bond.name + "': ";
-    static const std::set<std::string_view> kKeys = {"name", "tx"};
+    static const std::set<std::string_view> kKeys = {"name", "tx", "renumber"};
     check_keys(view, ctx, &kKeys);
     if (auto [it, inserted] = bond_names_.emplace(bond.name, name_entry.value.Mark());
         !inserted) {
@@ -561,6 +569,11 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
         bond.tx = choice<BondConfig::Tx>(*e, ctx,
                                          {{"broadcast", BondConfig::Tx::Broadcast},
                                           {"active", BondConfig::Tx::Active}});
+    }
+    if (const Entry* e = view.find("renumber")) {
+        bond.renumber = boolean(*e, ctx);
+        if (bond.renumber)
+            renumber_refs_.emplace_back(bond.name, value_mark(*e));
     }
     config_.bonds.push_back(std::move(bond));
 }
@@ -626,6 +639,47 @@ void Parser::parse_filter(const YAML::Node& node, size_t index) {
     config_.filters.push_back(std::move(filter));
 }
 
+uint8_t Parser::mavlink_id(const Entry& e, const std::string& ctx) const {
+    const std::string& text = scalar(e, ctx);
+    auto id = parse_u64(text);
+    if (!id || *id < 1 || *id > 255)
+        fail(value_mark(e), ctx + "'" + e.name + "': '" + text + "' is not a MAVLink id (1..255)");
+    return static_cast<uint8_t>(*id);
+}
+
+void Parser::parse_identity(const Entry& section) {
+    const std::string ctx = "identity: ";
+    if (!section.value.IsMap())
+        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
+    MapView view = make_view(section.value);
+    static const std::set<std::string_view> kKeys = {"sysid", "compid", "heartbeat"};
+    check_keys(view, ctx, &kKeys);
+    IdentityConfig& id = config_.identity;
+    if (const Entry* e = view.find("sysid"))
+        id.sysid = mavlink_id(*e, ctx);
+    if (const Entry* e = view.find("compid"))
+        id.compid = mavlink_id(*e, ctx);
+    if (const Entry* e = view.find("heartbeat"))
+        id.heartbeat = duration(*e, ctx, true);
+}
+
+void Parser::parse_link_events(const Entry& section) {
+    const std::string ctx = "link_events: ";
+    if (!section.value.IsMap())
+        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
+    MapView view = make_view(section.value);
+    static const std::set<std::string_view> kKeys = {"statustext", "silent_after", "min_interval"};
+    check_keys(view, ctx, &kKeys);
+    LinkEventsConfig& ev = config_.link_events;
+    ev.enabled = true;
+    if (const Entry* e = view.find("statustext"))
+        ev.statustext = boolean(*e, ctx);
+    if (const Entry* e = view.find("silent_after"))
+        ev.silent_after = duration(*e, ctx, true);
+    if (const Entry* e = view.find("min_interval"))
+        ev.min_interval = duration(*e, ctx, false);
+}
+
 void Parser::cross_check() {
     for (const auto& ref : bond_refs_) {
         const auto& ep = config_.endpoints[ref.endpoint];
@@ -641,6 +695,21 @@ void Parser::cross_check() {
             fail(bond_names_.at(bond.name),
                  "bond '" + bond.name + "' has no member endpoint (set 'bond: " + bond.name +
                      "' on at least one endpoint)");
+    }
+    // Renumbering learns each link's numbering from the copies dedup (key: content) drops.
+    for (const auto& [bond, mark] : renumber_refs_) {
+        bool found = false;
+        for (const auto& f : config_.filters) {
+            bool scoped = (f.bonds.empty() && f.endpoints.empty()) ||
+                          std::find(f.bonds.begin(), f.bonds.end(), bond) != f.bonds.end();
+            bool content = std::any_of(f.options.begin(), f.options.end(), [](const auto& o) {
+                return o.key == "key" && o.value == "content";
+            });
+            found = found || (f.enabled && f.plugin == "dedup" && scoped && content);
+        }
+        if (!found)
+            fail(mark, "bond '" + bond + "': 'renumber' needs a dedup filter with 'key: content' "
+                       "on this bond (with key: frame the copies already share one numbering)");
     }
     for (const auto& ref : scope_refs_) {
         bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0

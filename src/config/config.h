@@ -60,7 +60,27 @@ struct BondConfig {
     std::string name;
     enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
     SourceMark mark;
+    /// Rewrite the sequence number of delivered unsigned frames so a GCS sees the bond's real
+    /// loss (needs a dedup filter with key: content on the bond; see src/core/renumber.h).
+    bool renumber = false;
     bool operator==(const BondConfig&) const = default;
+};
+
+/// mavbond's own MAVLink identity, for the frames it makes itself (HEARTBEAT, STATUSTEXT).
+struct IdentityConfig {
+    uint8_t sysid = 1;
+    uint8_t compid = 191;        // MAV_COMP_ID_ONBOARD_COMPUTER
+    Duration heartbeat{0};       // period of our own HEARTBEAT; 0 = none
+    bool operator==(const IdentityConfig&) const = default;
+};
+
+/// `link_events:` reports bond members going silent, coming back, and active-link switches.
+struct LinkEventsConfig {
+    bool enabled = false;        // the section is present
+    bool statustext = true;      // also tell the GCS (STATUSTEXT), not only the log
+    Duration silent_after = seconds(1);
+    Duration min_interval = seconds(2);  // between two STATUSTEXTs about one link or bond
+    bool operator==(const LinkEventsConfig&) const = default;
 };
 
 /// One `filters:` entry. The plugin's own options are kept as raw key/value text with their
@@ -95,6 +115,8 @@ struct Config {
     std::vector<EndpointConfig> endpoints;
     std::vector<BondConfig> bonds;
     std::vector<FilterConfig> filters;
+    IdentityConfig identity;
+    LinkEventsConfig link_events;
 };
 
 /// Whether two declarations mean the same, wherever in their files they were written: what a

@@ -131,6 +131,10 @@ bool Router::may_send(const Endpoint& from, const Endpoint& to) const {
     // Never back to the source, and never reflected from one link of a bond into another.
     if (same_target(from, to))
         return false;
+    return bond_lets_send(to);
+}
+
+bool Router::bond_lets_send(const Endpoint& to) const {
     uint32_t bond = bond_of_[to.id()];
     if (bond == kNoBond)
         return true;
@@ -196,6 +200,14 @@ void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
     }
     if (!any)
         frames_without_destination_++;
+}
+
+void Router::inject(const Frame& frame, TimePoint now) {
+    for (Endpoint* to : endpoints_) {
+        if (to && bond_lets_send(*to))
+            deliver(frame, *to, now);
+    }
+    end_batch();
 }
 
 void Router::end_batch() {

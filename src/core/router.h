@@ -54,6 +54,11 @@ public:
     /// Handles one received frame: learn, filter, route, queue. The frame's bytes must stay
     /// valid until end_batch().
     void handle_frame(Endpoint& from, const Frame& frame, TimePoint now);
+    /// Sends a frame mavbond made itself (its own HEARTBEAT, STATUSTEXT) as a local source:
+    /// to every endpoint the bonds' tx policy lets send, through the egress filters; nothing
+    /// is learned and no ingress filter sees it. Flushes before returning, so the bytes need
+    /// only live for the call (call it from a timer, not from inside a receive batch).
+    void inject(const Frame& frame, TimePoint now);
     /// Flushes every endpoint that got frames since the last call. Receivers call it after
     /// each batch, before reusing their buffers.
     void end_batch();
@@ -93,6 +98,8 @@ private:
     /// Whether `to` may carry a frame from `from`: not the same endpoint or bond, and the
     /// bond's tx policy lets this member send.
     bool may_send(const Endpoint& from, const Endpoint& to) const;
+    /// Whether `to` may send under its bond's tx policy (always, outside a bond).
+    bool bond_lets_send(const Endpoint& to) const;
     void deliver(const Frame& frame, Endpoint& to, TimePoint now);
 
     Duration route_timeout_;

@@ -166,11 +166,12 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
 
 FrameFilter::Verdict FilterChain::on_ingress(const Frame& frame, Endpoint& from, TimePoint now) {
     const LinkView& v = links_[from.id()];
+    notes_ = mavbond_frame_notes{};
+    notes_.struct_size = sizeof notes_;
     if (v.scope_mask == 0)
         return Verdict::Pass;
     mavbond_frame f = to_c_frame(frame, now);
-    mavbond_frame_notes notes{};
-    notes.struct_size = sizeof notes;
+    mavbond_frame_notes& notes = notes_;
     for (size_t i = 0; i < instances_.size(); i++) {
         if (!(v.scope_mask >> i & 1))
             continue;

@@ -32,6 +32,9 @@ public:
     void on_endpoint(Endpoint& endpoint, bool added) override;
 
     size_t size() const { return instances_.size(); }
+    /// What the filters noted on the frame the last on_ingress() saw (zero when none was in
+    /// scope): the renumbering stage reads dedup's hash and duplicate notes here.
+    const mavbond_frame_notes& ingress_notes() const { return notes_; }
     /// {"filters":[{"plugin":..,"dropped":..,"status":{...}}]} for the status socket.
     std::string status_json() const;
 
@@ -67,6 +70,7 @@ private:
     std::vector<const mavbond_link*> link_list_;         // registered links, id order
     std::map<uint64_t, EventLoop::Timer> timers_;
     uint64_t next_timer_ = 1;
+    mavbond_frame_notes notes_{};
 };
 
 }  // namespace mavbond

@@ -70,6 +70,7 @@ Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Confi
       router_(config_->route_timeout, config_->bonds) {}
 
 Daemon::~Daemon() {
+    link_events_.reset();
     // Endpoints go away because the daemon stops, not because links fail: the filters must
     // not take it for an outage (a link switch logged at every shutdown).
     router_.set_filter(nullptr);
@@ -105,8 +106,22 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
     if (!chain)
         return StartError{kExitConfig, chain.error().message};
     d->chain_ = std::move(chain.value());
-    d->router_.set_filter(d->chain_.get());
+    d->renumber_ = std::make_unique<RenumberStage>(*d->chain_, d->router_, d->config_->bonds);
+    d->router_.set_filter(d->data_path());
     return d;
+}
+
+FrameFilter* Daemon::data_path() const {
+    return renumber_->active() ? static_cast<FrameFilter*>(renumber_.get()) : chain_.get();
+}
+
+void Daemon::start_local_source(bool identity_changed) {
+    link_events_.reset();
+    if (identity_changed || !local_source_)
+        local_source_ = std::make_unique<LocalSource>(config_->identity, loop_, router_);
+    if (config_->link_events.enabled)
+        link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, endpoints_,
+                                                          router_, loop_, *local_source_);
 }
 
 std::optional<Daemon::StartError> Daemon::start() {
@@ -132,6 +147,7 @@ std::optional<Daemon::StartError> Daemon::start() {
         return StartError{kExitOsError, endpoints.error().message};
     endpoints_ = std::move(endpoints.value());
     started_ = loop_.now();
+    start_local_source(true);
     open_status_socket();
     // The timers read the current config each time, so a reload changes their periods.
     report_timer_ = loop_.schedule(config_->report_interval, [this] {
@@ -153,6 +169,7 @@ int Daemon::run() {
     int code = loop_.run();
     router_.set_filter(nullptr);  // see ~Daemon
     dump_counters();
+    renumber_->log_summary();
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
     log_notice("exit: routed %llu frames, %llu without a destination; peak RSS %ld KiB",
@@ -207,6 +224,7 @@ bool Daemon::reload() {
         }
         next_chain = std::move(chain.value());
     }
+    link_events_.reset();  // it watches the endpoints about to change
 
     // An endpoint keeps running when its declaration means the same as before.
     auto unchanged = [&](const Endpoint& e) {
@@ -229,9 +247,12 @@ bool Daemon::reload() {
 
     if (next_chain) {
         router_.set_filter(nullptr);
+        renumber_->log_summary();
+        renumber_.reset();
         chain_ = std::move(next_chain);
+        renumber_ = std::make_unique<RenumberStage>(*chain_, router_, next->bonds);
         router_.replace_bonds(next->bonds);
-        router_.set_filter(chain_.get());  // the new chain hears of every endpoint kept
+        router_.set_filter(data_path());  // the new chain hears of every endpoint kept
     }
     router_.set_route_timeout(next->route_timeout);
 
@@ -253,8 +274,10 @@ bool Daemon::reload() {
     }
 
     bool status_moved = old.status_socket != next->status_socket;
+    bool identity_changed = !(old.identity == next->identity);
     config_ = std::move(next);
     log_set_level(config_->log_level);
+    start_local_source(identity_changed);
     if (status_moved)
         open_status_socket();
     log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",

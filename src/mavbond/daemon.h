@@ -12,10 +12,13 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
+#include "core/link_events.h"
+#include "core/local_source.h"
 #include "core/router.h"
 #include "core/status_socket.h"
 #include "endpoints/endpoint.h"
 #include "filters/filter_chain.h"
+#include "filters/renumber_stage.h"
 
 namespace mavbond {
 
@@ -76,6 +79,10 @@ private:
     Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config);
     /// Loads the file and applies the command line's overrides.
     static Result<std::unique_ptr<Config>> load(const DaemonOptions& opts);
+    /// The chain, seen through the renumbering stage when a bond renumbers.
+    FrameFilter* data_path() const;
+    /// mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
+    void start_local_source(bool identity_changed);
     void open_status_socket();
     void dump_counters() const;
 
@@ -84,7 +91,10 @@ private:
     std::unique_ptr<Config> config_;
     Router router_;
     std::unique_ptr<FilterChain> chain_;
+    std::unique_ptr<RenumberStage> renumber_;  // restarts with the chain
     std::vector<Endpoint::Ptr> endpoints_;  // config order
+    std::unique_ptr<LocalSource> local_source_;
+    std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
     std::unique_ptr<StatusSocket> status_;
     ProblemReport report_;
     EventLoop::Timer report_timer_;

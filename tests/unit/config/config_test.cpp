@@ -45,7 +45,8 @@ TEST_P(ShippedConfig, Loads) {
 
 INSTANTIATE_TEST_SUITE_P(Files, ShippedConfig,
                          testing::Values("conf/mavbond.yaml", "conf/examples/air-side.yaml",
-                                         "conf/examples/ground-side.yaml"));
+                                         "conf/examples/ground-side.yaml",
+                                         "conf/examples/link-events.yaml"));
 
 TEST(ShippedConfig, DefaultIsHarmless) {
     auto config = load_config(source_root() + "/conf/mavbond.yaml");
@@ -543,7 +544,59 @@ const BadCase kBadCases[] = {
      "t.yaml:8:5: filter #1 'dedup': option 'window' needs a value"},
     {"FilterNotMap", GCS "filters:\n  - dedup\n",
      "t.yaml:7:5: filter #1: must be a map of keys, not a scalar"},
+    // --- identity, link_events, renumber
+    {"IdentitySysidZero", GCS "identity:\n  sysid: 0\n",
+     "t.yaml:7:10: identity: 'sysid': '0' is not a MAVLink id (1..255)"},
+    {"IdentityCompidTooBig", GCS "identity: {compid: 256}\n",
+     "t.yaml:6:20: identity: 'compid': '256' is not a MAVLink id (1..255)"},
+    {"IdentityUnknownKey", GCS "identity: {sysid: 1, hartbeat: 1s}\n",
+     "t.yaml:6:22: identity: unknown key 'hartbeat'"},
+    {"LinkEventsNotMap", GCS "link_events: yes\n",
+     "t.yaml:6:14: link_events: must be a map of keys, not a scalar"},
+    {"LinkEventsZeroSilence", GCS "link_events:\n  silent_after: 0s\n",
+     "t.yaml:7:17: link_events: 'silent_after': duration must be greater than 0"},
+    {"RenumberWithoutDedup",
+     GCS "  - {name: lte, type: udp, mode: server, address: 0.0.0.0:14551, bond: b}\n"
+         "bonds:\n  - {name: b, renumber: true}\n",
+     "t.yaml:8:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond "
+     "(with key: frame the copies already share one numbering)"},
+    {"RenumberWithDedupKeyFrame",
+     GCS "  - {name: lte, type: udp, mode: server, address: 0.0.0.0:14551, bond: b}\n"
+         "bonds:\n  - {name: b, renumber: true}\nfilters:\n  - {plugin: dedup, bonds: [b]}\n",
+     "t.yaml:8:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond "
+     "(with key: frame the copies already share one numbering)"},
 };
+
+TEST(ConfigParse, IdentityLinkEventsAndRenumber) {
+    auto config = parse(R"(
+endpoints:
+  - {name: lte, type: udp, mode: server, address: 0.0.0.0:14551, bond: telemetry}
+bonds:
+  - {name: telemetry, renumber: true}
+filters:
+  - {plugin: dedup, bonds: [telemetry], key: content}
+identity: {sysid: 7, compid: 68, heartbeat: 500ms}
+link_events: {silent_after: 1.5s, min_interval: 3s}
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_TRUE(config->bonds[0].renumber);
+    EXPECT_EQ(7, config->identity.sysid);
+    EXPECT_EQ(68, config->identity.compid);
+    EXPECT_EQ(milliseconds(500), config->identity.heartbeat);
+    EXPECT_TRUE(config->link_events.enabled);
+    EXPECT_TRUE(config->link_events.statustext) << "on by default once the section is there";
+    EXPECT_EQ(milliseconds(1500), config->link_events.silent_after);
+    EXPECT_EQ(seconds(3), config->link_events.min_interval);
+}
+
+TEST(ConfigParse, WithoutTheSectionsMavbondSaysNothingOfItsOwn) {
+    auto config = parse(GCS);
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_FALSE(config->link_events.enabled);
+    EXPECT_EQ(Duration::zero(), config->identity.heartbeat);
+    EXPECT_EQ(1, config->identity.sysid);
+    EXPECT_EQ(191, config->identity.compid);
+}
 
 class BadConfig : public testing::TestWithParam<BadCase> {};
 

@@ -44,6 +44,13 @@ protected:
             router_.remove(*e);
     }
 
+    /// Makes endpoint i anew from its config, which it copied when it was made.
+    void rebuild(size_t i) {
+        router_.remove(*endpoints_[i]);
+        endpoints_[i] = std::make_unique<RecordingEndpoint>(*configs_[i], configs_[i]->name);
+        router_.add(*endpoints_[i]);
+    }
+
     RecordingEndpoint& gcs() { return *endpoints_[0]; }
     RecordingEndpoint& autopilot() { return *endpoints_[1]; }
     RecordingEndpoint& camera() { return *endpoints_[2]; }
@@ -145,6 +152,7 @@ TEST_F(RouterTest, RoutesExpireAfterTheTimeout) {
 
 TEST_F(RouterTest, OutFilterBlocksAndCounts) {
     configs_[0]->filter_out.block = {30};
+    rebuild(0);
     Frame f = frame(1, 1);
     f.msgid = 30;
     receive(autopilot(), f);
@@ -155,6 +163,7 @@ TEST_F(RouterTest, OutFilterBlocksAndCounts) {
 
 TEST_F(RouterTest, InFilterAllowListDropsTheRest) {
     configs_[1]->filter_in.allow = {0};
+    rebuild(1);
     Frame hb = frame(1, 1);
     Frame att = frame(1, 1);
     att.msgid = 30;
@@ -232,6 +241,21 @@ TEST_F(BondRouterTest, ActiveBondSendsOnTheActiveLinkOnly) {
     EXPECT_EQ(0u, radio().sent.size());
     EXPECT_EQ(1u, lte().sent.size());
     EXPECT_EQ(1u, router_.bonds()[0].switches);
+}
+
+TEST_F(BondRouterTest, InjectedFrameGoesEverywhereTheTxPolicyAllows) {
+    make(BondConfig::Tx::Active);
+    router_.inject(frame(1, 191), now_);
+    EXPECT_EQ(1u, radio().sent.size()) << "no active link chosen yet: every member";
+    EXPECT_EQ(1u, lte().sent.size());
+    EXPECT_EQ(1u, ground().sent.size());
+    EXPECT_FALSE(router_.knows(ground(), 1, 191)) << "a local frame teaches no route";
+    ASSERT_TRUE(router_.set_active_link(0, radio().id()));
+    clear_sent();
+    router_.inject(frame(1, 191), now_);  // flushed by inject itself: no end_batch()
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(0u, lte().sent.size());
+    EXPECT_EQ(1u, ground().sent.size());
 }
 
 }  // namespace

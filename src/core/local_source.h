@@ -1,0 +1,44 @@
+// mavbond as a MAVLink component of its own (`identity:`): the frames it originates, with its
+// own sequence counter, sent through the router as from a local source. Its HEARTBEAT says
+// what it is (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID) so a GCS lists it as a
+// component and not as a vehicle.
+#pragma once
+
+#include <cstdint>
+#include <string_view>
+
+#include "config/config.h"
+#include "core/event_loop.h"
+
+namespace mavbond {
+
+class Router;
+
+/// MAV_SEVERITY values (MAVLink common.xml).
+enum class Severity : uint8_t {
+    Emergency = 0, Alert = 1, Critical = 2, Error = 3, Warning = 4, Notice = 5, Info = 6, Debug = 7
+};
+
+class LocalSource {
+public:
+    /// Starts the HEARTBEAT timer when identity.heartbeat is set.
+    LocalSource(const IdentityConfig& identity, EventLoop& loop, Router& router);
+
+    void send_heartbeat();
+    /// One STATUSTEXT; text beyond STATUSTEXT's 50 characters is cut.
+    void send_statustext(Severity severity, std::string_view text);
+
+    uint64_t frames_sent() const { return frames_sent_; }
+
+private:
+    void send(uint32_t msgid, const uint8_t* payload, size_t len);
+
+    const IdentityConfig identity_;  // a copy: a reload replaces the Config
+    EventLoop& loop_;
+    Router& router_;
+    uint8_t seq_ = 0;
+    uint64_t frames_sent_ = 0;
+    EventLoop::Timer heartbeat_timer_;
+};
+
+}  // namespace mavbond

@@ -1,0 +1,73 @@
+#include "filters/renumber_stage.h"
+
+#include "core/log.h"
+#include "endpoints/endpoint.h"
+#include "mavlink/frame_writer.h"
+
+namespace mavbond {
+
+RenumberStage::RenumberStage(FilterChain& chain, const Router& router,
+                             const std::vector<BondConfig>& bonds)
+    : chain_(chain), router_(router), bonds_(bonds.size()) {
+    for (size_t i = 0; i < bonds.size(); i++) {
+        if (bonds[i].renumber) {
+            bonds_[i].renumberer = std::make_unique<SeqRenumberer>();
+            active_ = true;
+        }
+    }
+}
+
+FrameFilter::Verdict RenumberStage::on_ingress(const Frame& frame, Endpoint& from, TimePoint now) {
+    Verdict verdict = chain_.on_ingress(frame, from, now);
+    uint32_t bond = router_.bond_of(from);
+    if (bond >= bonds_.size() || !bonds_[bond].renumberer)
+        return verdict;
+    BondState& b = bonds_[bond];
+    if (frame.is_signed()) {
+        b.signed_left_alone++;
+        return verdict;
+    }
+    const mavbond_frame_notes& notes = chain_.ingress_notes();
+    const bool hashed = notes.flags & MAVBOND_NOTE_HASHED;
+    const SeqRenumberer::Key key{notes.hash[0], notes.hash[1]};
+    const int64_t t_ns = std::chrono::duration_cast<Duration>(now.time_since_epoch()).count();
+    if (verdict == Verdict::Drop) {
+        // Only a copy dedup dropped teaches an offset; other drops leave no trace.
+        if (hashed && (notes.flags & MAVBOND_NOTE_DUPLICATE))
+            b.renumberer->duplicate(frame.sysid, frame.compid, from.id(), frame.seq, key, t_ns,
+                                    notes.skew_ns);
+        return verdict;
+    }
+    uint8_t out = b.renumberer->deliver(frame.sysid, frame.compid, from.id(), frame.seq,
+                                        hashed ? &key : nullptr, t_ns);
+    rewrite_seq_in_place(frame, out);
+    return verdict;
+}
+
+FrameFilter::Verdict RenumberStage::on_egress(const Frame& frame, Endpoint& to, TimePoint now) {
+    if (frame.seq == wire_seq(frame))
+        return chain_.on_egress(frame, to, now);
+    // Renumbered on ingress: the egress filters see the number that goes on the wire.
+    Frame renumbered = frame;
+    renumbered.seq = wire_seq(frame);
+    return chain_.on_egress(renumbered, to, now);
+}
+
+void RenumberStage::on_endpoint(Endpoint& endpoint, bool added) {
+    chain_.on_endpoint(endpoint, added);
+}
+
+void RenumberStage::log_summary() const {
+    for (size_t i = 0; i < bonds_.size(); i++) {
+        if (!bonds_[i].renumberer)
+            continue;
+        const SeqRenumberer::Counters& c = bonds_[i].renumberer->counters();
+        log_notice("renumber bond=%s renumbered=%llu offsets_learned=%llu unmatched=%llu "
+                   "untracked=%llu signed_left_alone=%llu",
+                   router_.bonds()[i].name.c_str(), (unsigned long long)c.renumbered,
+                   (unsigned long long)c.offsets_learned, (unsigned long long)c.unmatched,
+                   (unsigned long long)c.untracked, (unsigned long long)bonds_[i].signed_left_alone);
+    }
+}
+
+}  // namespace mavbond

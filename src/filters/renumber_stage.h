@@ -1,0 +1,42 @@
+// The filter chain plus sequence renumbering for the bonds that ask for it (`renumber: true`):
+// it sees what dedup noted on each frame (its key hash; whether it was a duplicate copy) and
+// rewrites the seq of the frames the bond delivers before they are routed. Bonds without
+// renumbering, and signed frames (the signature covers seq, they are counted), pass untouched.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "core/renumber.h"
+#include "core/router.h"
+#include "filters/filter_chain.h"
+
+namespace mavbond {
+
+class RenumberStage : public FrameFilter {
+public:
+    RenumberStage(FilterChain& chain, const Router& router, const std::vector<BondConfig>& bonds);
+
+    /// Whether any bond renumbers (otherwise the router can use the chain directly).
+    bool active() const { return active_; }
+
+    Verdict on_ingress(const Frame& frame, Endpoint& from, TimePoint now) override;
+    Verdict on_egress(const Frame& frame, Endpoint& to, TimePoint now) override;
+    void on_endpoint(Endpoint& endpoint, bool added) override;
+
+    /// One log line per renumbering bond: what it did.
+    void log_summary() const;
+
+private:
+    struct BondState {
+        std::unique_ptr<SeqRenumberer> renumberer;  // nullptr: this bond does not renumber
+        uint64_t signed_left_alone = 0;
+    };
+
+    FilterChain& chain_;
+    const Router& router_;
+    std::vector<BondState> bonds_;  // index = bond index
+    bool active_ = false;
+};
+
+}  // namespace mavbond
