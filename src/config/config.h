@@ -78,6 +78,15 @@ struct FilterConfig {
     SourceMark mark;
 };
 
+/// `metrics:`: the Prometheus endpoint (src/core/metrics_http.h). Off unless `listen` is given.
+struct MetricsConfig {
+    bool enabled = false;
+    std::string host = "127.0.0.1";  // only a port given: loopback, never every interface
+    uint16_t port = 0;
+    Duration timeout = seconds(5);   // a connection is closed this long after it was accepted
+    uint32_t max_connections = 8;    // beyond: 503
+};
+
 struct Config {
     std::string path;                              // the file it came from
     LogLevel log_level = LogLevel::Info;
@@ -89,6 +98,7 @@ struct Config {
     std::vector<EndpointConfig> endpoints;
     std::vector<BondConfig> bonds;
     std::vector<FilterConfig> filters;
+    MetricsConfig metrics;
 };
 
 /// Loads and validates a config file. The error's message is "file:line:column: what".

@@ -12,6 +12,8 @@
 #include "config/config.h"
 #include "core/event_loop.h"
 #include "core/log.h"
+#include "core/metrics.h"
+#include "core/metrics_http.h"
 #include "core/router.h"
 #include "core/status_socket.h"
 #include "endpoints/endpoint.h"
@@ -229,6 +231,18 @@ int run_daemon(const Options& opts) {
             status = std::move(st.value());
         else
             log_warning("%s: mavbondctl cannot reach this daemon", st.error().message.c_str());
+    }
+    std::unique_ptr<MetricsHttpServer> metrics;
+    if (config->metrics.enabled) {
+        const MetricsConfig& mc = config->metrics;
+        auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout}, ev, [&] {
+            return metrics_document(*endpoints, router, *chain.value(), started, ev.now());
+        });
+        // As with the status socket: without its metrics the daemon still routes.
+        if (m)
+            metrics = std::move(m.value());
+        else
+            log_warning("%s: Prometheus cannot scrape this daemon", m.error().message.c_str());
     }
     ProblemReport report(*endpoints);
     auto report_timer = ev.schedule(config->report_interval, [&] {
