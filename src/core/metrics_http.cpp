@@ -21,6 +21,7 @@ struct MetricsHttpServer::Connection {
     std::string request;   // never longer than Limits::max_request
     std::string response;
     size_t sent = 0;
+    size_t drained = 0;    // bytes thrown away after the response
 };
 
 namespace {
@@ -58,15 +59,23 @@ bool is_token(std::string_view s) {
     return true;
 }
 
-/// Reads and throws away what the peer sent; false once it closed (or failed).
-bool drain(int fd) {
-    char scratch[1024];
-    for (;;) {
+// What a client may still send after its response before it is cut off: enough for a body
+// it sent along, not a way to keep the server reading.
+constexpr size_t kDrainBudget = 64 * 1024;
+
+/// Reads and throws away what the peer sent, adding to `drained`; false once it closed,
+/// failed, or sent more than kDrainBudget.
+bool drain(int fd, size_t& drained) {
+    char scratch[4096];
+    while (drained <= kDrainBudget) {
         ssize_t n = recv(fd, scratch, sizeof scratch, MSG_DONTWAIT);
-        if (n > 0)
+        if (n > 0) {
+            drained += static_cast<size_t>(n);
             continue;
+        }
         return n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR);
     }
+    return false;
 }
 
 }  // namespace
@@ -213,7 +222,8 @@ void MetricsHttpServer::refuse(UniqueFd client) {
     ssize_t n = send(client.get(), reply.data(), reply.size(), MSG_DONTWAIT | MSG_NOSIGNAL);
     (void)n;
     shutdown(client.get(), SHUT_WR);
-    drain(client.get());  // unread input would turn the close into a reset
+    size_t drained = 0;
+    drain(client.get(), drained);  // unread input would turn the close into a reset
     log_debug("metrics endpoint: %zu connections open, one refused", connections_.size());
 }
 
@@ -229,7 +239,7 @@ void MetricsHttpServer::on_io(Connection& c, uint32_t events) {
             write_response(c);
         return;
     case Connection::State::Closing:
-        if (!drain(c.fd.get()) || (events & (EPOLLERR | EPOLLHUP)))
+        if (!drain(c.fd.get(), c.drained) || (events & (EPOLLERR | EPOLLHUP)))
             close(c);
         return;
     }
@@ -313,13 +323,14 @@ void MetricsHttpServer::write_response(Connection& c) {
         }
         c.sent += static_cast<size_t>(n);
     }
-    // Sent: half-close, then read until the client closes too (or the timeout), so input
-    // still arriving never turns the close into a reset that loses the response.
+    // Sent: half-close, then read until the client closes too (or the timeout, or the drain
+    // budget), so input still arriving never turns the close into a reset that loses the
+    // response.
     c.response = std::string();
     shutdown(c.fd.get(), SHUT_WR);
     c.state = Connection::State::Closing;
     c.watch.set_events(EPOLLIN | EPOLLRDHUP);
-    if (!drain(c.fd.get()))
+    if (!drain(c.fd.get(), c.drained))
         close(c);
 }
 
