@@ -8,8 +8,9 @@ BUILD=${MAVBOND_BUILD_DIR:-$ROOT/build}
 VENV=${MAVBOND_VENV:-$ROOT/.venv}
 DEB_PACKAGES=(g++ meson ninja-build pkgconf libyaml-cpp-dev libboost-dev libgtest-dev libgmock-dev
               python3 python3-venv ca-certificates procps iproute2)
-# One line: scripts/package reads it. matplotlib draws scripts/compare's plots.
-PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 pytest-rerunfailures==15.0 matplotlib==3.10.8)
+# One line: scripts/package reads it. matplotlib draws scripts/compare's plots; prometheus-client
+# parses /metrics in tests/integration/test_metrics.py.
+PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 pytest-rerunfailures==15.0 matplotlib==3.10.8 prometheus-client==0.26.0)
 
 say() { printf '==> %s\n' "$*" >&2; }
 

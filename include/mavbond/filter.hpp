@@ -10,6 +10,7 @@
 // and, when it needs them:
 //   void on_link(const mavbond_link* link, mavbond_link_event event);
 //   size_t status_json(char* buf, size_t len);   // the length it needed, like snprintf
+//   void metrics(mavbond::MetricOut& out);        // out.counter(...), out.gauge(...)
 //
 // In the plugin:
 //   MAVBOND_FILTER_PLUGIN(MyFilter, "myfilter", "1.0", "what it does", kOptions)
@@ -18,6 +19,7 @@
 
 #include <cstdio>
 #include <exception>
+#include <initializer_list>
 #include <memory>
 #include <new>
 #include <type_traits>
@@ -25,6 +27,37 @@
 #include "mavbond/plugin.h"
 
 namespace mavbond {
+
+/// What a plugin's metrics() writes to: one call per sample, straight through to the host.
+class MetricOut {
+public:
+    MetricOut(mavbond_metric_sink sink, void* ctx) : sink_(sink), ctx_(ctx) {}
+    void counter(const char* name, const char* help, uint64_t count,
+                 std::initializer_list<mavbond_label> labels = {}) {
+        emit(MAVBOND_METRIC_COUNTER, name, help, labels, count, 0);
+    }
+    void gauge(const char* name, const char* help, double value,
+               std::initializer_list<mavbond_label> labels = {}) {
+        emit(MAVBOND_METRIC_GAUGE, name, help, labels, 0, value);
+    }
+
+private:
+    void emit(mavbond_metric_type type, const char* name, const char* help,
+              std::initializer_list<mavbond_label> labels, uint64_t count, double value) {
+        mavbond_metric_sample s{};
+        s.struct_size = sizeof s;
+        s.type = type;
+        s.name = name;
+        s.help = help;
+        s.labels = labels.begin();
+        s.label_count = static_cast<uint32_t>(labels.size());
+        s.count = count;
+        s.value = value;
+        sink_(ctx_, &s);
+    }
+    mavbond_metric_sink sink_;
+    void* ctx_;
+};
 
 template <typename T>
 struct FilterPlugin {
@@ -78,6 +111,14 @@ struct FilterPlugin {
         }
     }
 
+    static void metrics(void* self, mavbond_metric_sink sink, void* ctx) noexcept {
+        try {
+            MetricOut out(sink, ctx);
+            static_cast<T*>(self)->metrics(out);
+        } catch (...) {
+        }
+    }
+
     static constexpr mavbond_plugin_descriptor descriptor(const char* name, const char* version,
                                                           const char* description,
                                                           const mavbond_option* options) {
@@ -95,6 +136,8 @@ struct FilterPlugin {
             d.on_link = on_link;
         if constexpr (requires(T t, char* b) { t.status_json(b, size_t{0}); })
             d.status_json = status_json;
+        if constexpr (requires(T t, MetricOut& o) { t.metrics(o); })
+            d.metrics = metrics;
         return d;
     }
 };

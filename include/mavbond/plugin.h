@@ -20,7 +20,7 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change; the host accepts exactly its own version. */
-#define MAVBOND_PLUGIN_ABI_VERSION 1u
+#define MAVBOND_PLUGIN_ABI_VERSION 2u  /* 2: the metrics hook */
 #define MAVBOND_PLUGIN_ENTRY_SYMBOL "mavbond_plugin_entry"
 
 #define MAVBOND_EXPORT __attribute__((visibility("default")))
@@ -132,6 +132,38 @@ typedef struct mavbond_option {
     const char *help;
 } mavbond_option;
 
+/* Metrics (ABI 2): a plugin's figures as typed samples for the daemon's Prometheus endpoint.
+ * The host names a sample mavbond_PLUGIN_NAME (plus _total for a counter), adds the label
+ * filter="INSTANCE" and groups samples by name. NAME: [a-zA-Z0-9_]; label names: [a-zA-Z_]
+ * then [a-zA-Z0-9_], not "filter", at most MAVBOND_METRIC_MAX_LABELS; label values: any
+ * UTF-8. Samples of one name must agree on type and help; the host skips (and logs once)
+ * any sample that breaks a rule. */
+typedef enum mavbond_metric_type {
+    MAVBOND_METRIC_COUNTER = 1, /* only grows (from 0 at the instance's creation): `count` */
+    MAVBOND_METRIC_GAUGE = 2    /* any value, NaN and infinities included: `value` */
+} mavbond_metric_type;
+
+#define MAVBOND_METRIC_MAX_LABELS 8
+
+typedef struct mavbond_label {
+    const char *name;
+    const char *value;
+} mavbond_label;
+
+typedef struct mavbond_metric_sample {
+    uint32_t struct_size;
+    mavbond_metric_type type;
+    const char *name;
+    const char *help;
+    const mavbond_label *labels;
+    uint32_t label_count;
+    uint64_t count;           /* COUNTER: exact, never a float */
+    double value;             /* GAUGE */
+} mavbond_metric_sample;
+
+/* The host's callback for one sample; every pointer in it is read during the call only. */
+typedef void (*mavbond_metric_sink)(void *sink_ctx, const mavbond_metric_sample *sample);
+
 typedef struct mavbond_host mavbond_host;     /* opaque: one per filter instance */
 typedef struct mavbond_config mavbond_config; /* opaque: this instance's options */
 
@@ -196,6 +228,9 @@ typedef struct mavbond_plugin_descriptor {
     /* Writes a JSON object describing the instance's state into buf (for the status socket);
      * returns the length it needed. May be NULL. */
     size_t (*status_json)(void *self, char *buf, size_t len);
+    /* Calls sink(sink_ctx, &sample) once per sample (for a scrape of the metrics endpoint).
+     * May be NULL. (ABI 2) */
+    void (*metrics)(void *self, mavbond_metric_sink sink, void *sink_ctx);
 } mavbond_plugin_descriptor;
 
 typedef const mavbond_plugin_descriptor *(*mavbond_plugin_entry_fn)(void);

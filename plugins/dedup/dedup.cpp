@@ -183,6 +183,7 @@ public:
                                const mavbond_link* from);
     void on_link(const mavbond_link* link, mavbond_link_event event);
     std::string status() const;
+    void metrics(MetricOut& out) const;
     size_t status_json(char* buf, size_t len) const {
         std::string s = status();
         if (buf && len > 0)
@@ -778,6 +779,38 @@ std::string Dedup::status() const {
     }
     out += "]}";
     return out;
+}
+
+void Dedup::metrics(MetricOut& out) const {
+    const mavbond_link* links[256];
+    size_t n = std::min<size_t>(api_->links(host_, links, 256), 256);
+    for (const Member& mem : members_) {
+        if (mem.link_id == kNone)
+            continue;
+        const mavbond_link* l = nullptr;
+        for (size_t i = 0; i < n && !l; i++)
+            l = links[i]->id == mem.link_id ? links[i] : nullptr;
+        if (!l || !l->name)
+            continue;  // gone (a UDP peer forgotten): its figures are history, not a series
+        std::initializer_list<mavbond_label> labels = {
+            {"link", l->name}, {"bond", l->bond_name ? l->bond_name : ""}};
+        out.counter("passed_frames", "Frames of a link that dedup let through (first copies).",
+                    mem.passed, labels);
+        out.counter("duplicates", "Copies of an earlier frame that dedup dropped, by link.",
+                    mem.duplicates, labels);
+        out.counter("stale", "Samples older than one already delivered that dedup dropped.",
+                    mem.stale, labels);
+    }
+    out.gauge("entries", "Frames remembered in the window now.",
+              static_cast<double>(fresh_ - free_count_));
+    out.gauge("max_entries", "Frames remembered at most (max_entries).",
+              static_cast<double>(capacity_));
+    out.counter("evicted_early",
+                "Frames forgotten before the window ended because max_entries was reached.",
+                evicted_early_);
+    out.counter("untracked_streams",
+                "Timestamped frames not checked for staleness: too many streams.",
+                untracked_streams_);
 }
 
 }  // namespace

@@ -148,6 +148,7 @@ public:
                                const mavbond_link* from);
     void on_link(const mavbond_link* link, mavbond_link_event event);
     size_t status_json(char* buf, size_t len);
+    void metrics(mavbond::MetricOut& out);
     int tick();
 
 private:
@@ -544,6 +545,34 @@ size_t LinkSwitch::status_json(char* buf, size_t len) {
     }
     out.raw("]}");
     return out.length();
+}
+
+void LinkSwitch::metrics(mavbond::MetricOut& out) {
+    uint64_t now = api_->now_ns(h_);
+    for (Bond& b : bonds_) {
+        out.counter("switches", "Changes of a bond's active link.", b.switches,
+                    {{"bond", b.name.c_str()}});
+        for (uint32_t id : b.members) {
+            Link& l = links_[id];
+            std::initializer_list<mavbond_label> labels = {{"bond", b.name.c_str()},
+                                                           {"link", l.name.c_str()}};
+            out.gauge("active", "1 for the link linkswitch made active, 0 for the others.",
+                      id == b.active ? 1 : 0, labels);
+            out.gauge("alive", "1 while a link is heard (within switch_after).",
+                      alive(l, now) ? 1 : 0, labels);
+            int64_t expected = 0;
+            double loss = 0;
+            l.window.totals(now, expected, loss);
+            out.gauge("loss_ratio",
+                      "A link's loss over loss_window (0..1); NaN: too few frames to tell.",
+                      expected >= kMinExpected ? loss : std::numeric_limits<double>::quiet_NaN(),
+                      labels);
+            out.counter("passed_frames", "Frames of a link that linkswitch let through.",
+                        l.passed, labels);
+            out.counter("dropped_frames", "Frames of a link that linkswitch dropped (not active).",
+                        l.dropped, labels);
+        }
+    }
 }
 
 }  // namespace

@@ -134,6 +134,7 @@ public:
                     const mavbond_link* from);
     void on_link(const mavbond_link* link, mavbond_link_event event);
     size_t status_json(char* buf, size_t len);
+    void metrics(mavbond::MetricOut& out);
     int tick();
 
 private:
@@ -585,6 +586,51 @@ size_t Stats::status_json(char* buf, size_t len) {
     }
     out.raw("]}");
     return out.length();
+}
+
+/// Counters only grow, so loss is given as expected and received frames (lost = expected -
+/// received): both only grow, even when a late frame fills a gap counted as lost, and
+/// 1 - rate(received) / rate(expected) is the loss over any window Prometheus looks at.
+void Stats::metrics(mavbond::MetricOut& out) {
+    for (LinkStats& l : links_) {
+        if (!l.present || !l.in_scope)
+            continue;
+        refresh_counters(l);
+        const LinkTotals& t = l.total;
+        const char* bond = l.bond == kNone ? "" : bonds_[l.bond].name.c_str();
+        std::initializer_list<mavbond_label> labels = {{"link", l.name.c_str()}, {"bond", bond}};
+        out.counter("link_frames", "Frames a link received (every copy, before any filter).",
+                    t.frames, labels);
+        out.counter("link_bytes", "Bytes of the frames a link received.", t.bytes, labels);
+        out.counter("link_expected_frames",
+                    "Frames a link should have received, from MAVLink sequence numbers.",
+                    static_cast<uint64_t>(std::max<int64_t>(t.received + t.lost, 0)), labels);
+        out.counter("link_received_frames",
+                    "Distinct sequence numbers a link received (expected minus lost).",
+                    static_cast<uint64_t>(t.received), labels);
+        out.gauge("link_loss_ratio", "A link's loss since the start (0..1).",
+                  loss_fraction(t.received, t.lost), labels);
+        out.counter("link_crc_errors", "Frames with a bad CRC on a link.", t.crc_errors, labels);
+    }
+    for (BondStats& b : bonds_) {
+        const BondTotals& t = b.total;
+        std::initializer_list<mavbond_label> labels = {{"bond", b.name.c_str()}};
+        out.counter("bond_frames", "Frames of a bond's links, every copy.", t.frames, labels);
+        out.counter("bond_delivered_frames", "Frames of a bond that no filter dropped.",
+                    t.delivered, labels);
+        out.counter("bond_duplicates", "Copies of a bond's frames that dedup dropped.",
+                    t.duplicates, labels);
+        out.counter("bond_stale", "Stale samples of a bond that dedup dropped.", t.stale, labels);
+        out.counter("bond_delivered_expected_frames",
+                    "Frames the delivered stream should have had, from sequence numbers.",
+                    static_cast<uint64_t>(std::max<int64_t>(t.received + t.lost, 0)), labels);
+        out.counter("bond_delivered_received_frames",
+                    "Distinct sequence numbers the delivered stream had.",
+                    static_cast<uint64_t>(t.received), labels);
+        out.gauge("bond_delivered_loss_ratio",
+                  "Loss of a bond's delivered stream since the start (0..1).",
+                  loss_fraction(t.received, t.lost), labels);
+    }
 }
 
 }  // namespace

@@ -174,6 +174,7 @@ private:
     void parse_identity(const Entry& section);
     void parse_link_events(const Entry& section);
     uint8_t mavlink_id(const Entry& e, const std::string& ctx) const;
+    void parse_metrics(const Entry& e);
     void cross_check();
 
     std::string name_;
@@ -315,7 +316,7 @@ Config Parser::parse(const YAML::Node& root) {
 
     static const std::set<std::string_view> kTopKeys = {
         "log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
-        "status_socket", "endpoints", "bonds", "filters", "identity", "link_events"};
+        "status_socket", "endpoints", "bonds", "filters", "identity", "link_events", "metrics"};
     MapView view = make_view(root);
     check_keys(view, "", &kTopKeys);
 
@@ -339,6 +340,8 @@ Config Parser::parse(const YAML::Node& root) {
         config_.plugin_dir = scalar(*e, "");
     if (const Entry* e = view.find("status_socket"))
         config_.status_socket = scalar(*e, "");
+    if (const Entry* e = view.find("metrics"))
+        parse_metrics(*e);
 
     const Entry* endpoints = view.find("endpoints");
     if (!endpoints)
@@ -576,6 +579,46 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
             renumber_refs_.emplace_back(bond.name, value_mark(*e));
     }
     config_.bonds.push_back(std::move(bond));
+}
+
+void Parser::parse_metrics(const Entry& entry) {
+    const std::string ctx = "metrics: ";
+    if (!entry.value.IsMap())
+        fail(value_mark(entry), std::string("'metrics' must be a map of keys (listen, timeout, "
+                                            "max_connections), not ") + kind_name(entry.value));
+    MapView view = make_view(entry.value);
+    static const std::set<std::string_view> kKeys = {"listen", "timeout", "max_connections"};
+    check_keys(view, ctx, &kKeys);
+    MetricsConfig& m = config_.metrics;
+    const Entry* listen = view.find("listen");
+    if (!listen)
+        fail(value_mark(entry), ctx + "missing required key 'listen' (e.g. 127.0.0.1:9273)");
+    const std::string& text = scalar(*listen, ctx);
+    auto colon = text.rfind(':');
+    std::string port_text = colon == std::string::npos ? text : text.substr(colon + 1);
+    if (colon != std::string::npos) {
+        m.host = text.substr(0, colon);
+        in_addr addr{};
+        if (m.host == "localhost")
+            m.host = "127.0.0.1";
+        else if (inet_pton(AF_INET, m.host.c_str(), &addr) != 1)
+            fail(value_mark(*listen), ctx + "'listen': host '" + m.host +
+                                          "' is not an IPv4 address (a.b.c.d) or 'localhost'");
+    }
+    auto port = parse_u64(port_text);
+    if (!port || *port < 1 || *port > 65535)
+        fail(value_mark(*listen), ctx + "'listen': port '" + port_text + "' is not in 1..65535");
+    m.port = static_cast<uint16_t>(*port);
+    m.enabled = true;
+    if (const Entry* e = view.find("timeout"))
+        m.timeout = duration(*e, ctx, true);
+    if (const Entry* e = view.find("max_connections")) {
+        const std::string& n_text = scalar(*e, ctx);
+        auto n = parse_u64(n_text);
+        if (!n || *n < 1 || *n > 1024)
+            fail(value_mark(*e), ctx + "'max_connections': '" + n_text + "' is not in 1..1024");
+        m.max_connections = static_cast<uint32_t>(*n);
+    }
 }
 
 void Parser::parse_filter(const YAML::Node& node, size_t index) {

@@ -104,6 +104,16 @@ struct FilterConfig {
     bool operator==(const FilterConfig&) const = default;
 };
 
+/// `metrics:`: the Prometheus endpoint (src/core/metrics_http.h). Off unless `listen` is given.
+struct MetricsConfig {
+    bool enabled = false;
+    std::string host = "127.0.0.1";  // only a port given: loopback, never every interface
+    uint16_t port = 0;
+    Duration timeout = seconds(5);   // a connection is closed this long after it was accepted
+    uint32_t max_connections = 8;    // beyond: 503
+    bool operator==(const MetricsConfig&) const = default;
+};
+
 struct Config {
     std::string path;                              // the file it came from
     LogLevel log_level = LogLevel::Info;
@@ -117,6 +127,7 @@ struct Config {
     std::vector<FilterConfig> filters;
     IdentityConfig identity;
     LinkEventsConfig link_events;
+    MetricsConfig metrics;
 };
 
 /// Whether two declarations mean the same, wherever in their files they were written: what a

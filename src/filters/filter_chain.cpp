@@ -1,7 +1,9 @@
 #include "filters/filter_chain.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
+#include <cstring>
 
 #include "core/log.h"
 #include "endpoints/endpoint.h"
@@ -17,6 +19,7 @@ struct FilterChain::Instance {
     mavbond_config view{};
     void* self = nullptr;
     uint64_t dropped = 0;
+    bool bad_metric_logged = false;
 };
 
 namespace {
@@ -231,6 +234,74 @@ std::string FilterChain::status_json() const {
         out += "}";
     }
     return out + "]";
+}
+
+namespace {
+
+/// What the metrics sink needs to know about the instance whose samples it takes.
+struct MetricSink {
+    MetricSet& out;
+    const std::string& plugin;
+    const std::string& instance;
+    bool& bad_logged;
+
+    static void take(void* ctx, const mavbond_metric_sample* s) noexcept {
+        auto& self = *static_cast<MetricSink*>(ctx);
+        try {
+            std::string why = self.add(s);
+            if (!why.empty() && !self.bad_logged) {
+                self.bad_logged = true;
+                log_warning("[filter:%s] metric skipped: %s (further ones are not logged)",
+                            self.instance.c_str(), why.c_str());
+            }
+        } catch (...) {
+            // Out of memory in a scrape: that sample is missing, the daemon goes on.
+        }
+    }
+
+    /// Adds one sample; the reason when it breaks a rule.
+    std::string add(const mavbond_metric_sample* s) {
+        if (!s || s->struct_size < sizeof(mavbond_metric_sample) || !s->name || !s->help)
+            return "a sample without name or help, or of an older struct size";
+        std::string name = "mavbond_" + plugin + "_" + s->name;
+        for (const char* c = s->name; *c; c++) {
+            if (!(isalnum(static_cast<unsigned char>(*c)) || *c == '_'))
+                return name + ": the name may hold only a-z A-Z 0-9 _";
+        }
+        if (s->label_count > MAVBOND_METRIC_MAX_LABELS || (s->label_count && !s->labels))
+            return name + ": more than " + std::to_string(MAVBOND_METRIC_MAX_LABELS) + " labels";
+        MetricLabels labels{{"filter", instance}};
+        for (uint32_t i = 0; i < s->label_count; i++) {
+            const mavbond_label& l = s->labels[i];
+            if (!l.name || !l.value)
+                return name + ": a label without name or value";
+            if (std::strcmp(l.name, "filter") == 0)
+                return name + ": the label 'filter' is the host's";
+            labels.emplace_back(l.name, l.value);
+        }
+        Result<void> r;
+        if (s->type == MAVBOND_METRIC_COUNTER)
+            r = out.counter(name, s->help, s->count, labels);
+        else if (s->type == MAVBOND_METRIC_GAUGE)
+            r = out.gauge(name, s->help, s->value, labels);
+        else
+            return name + ": unknown type " + std::to_string(static_cast<int>(s->type));
+        return r ? "" : r.error().message;
+    }
+};
+
+}  // namespace
+
+void FilterChain::collect_metrics(MetricSet& out) const {
+    const char* help = "Frames a filter dropped (its own verdicts).";
+    out.declare("mavbond_filter_dropped", help, MetricSet::Type::Counter);
+    for (const auto& inst : instances_) {
+        out.counter("mavbond_filter_dropped", help, inst->dropped, {{"filter", inst->host.name}, {"plugin", inst->entry->plugin}});
+        if (auto hook = inst->plugin->descriptor().metrics) {
+            MetricSink sink{out, inst->entry->plugin, inst->host.name, inst->bad_metric_logged};
+            hook(inst->self, MetricSink::take, &sink);
+        }
+    }
 }
 
 // --- HostServices --------------------------------------------------------------------------

@@ -12,6 +12,7 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
+#include "core/prometheus.h"
 #include "core/router.h"
 #include "filters/plugin_host.h"
 #include "filters/plugin_loader.h"
@@ -37,6 +38,10 @@ public:
     const mavbond_frame_notes& ingress_notes() const { return notes_; }
     /// {"filters":[{"plugin":..,"dropped":..,"status":{...}}]} for the status socket.
     std::string status_json() const;
+    /// Each filter's drop count and what its plugin's metrics hook gives: samples named
+    /// mavbond_PLUGIN_NAME and labelled filter="INSTANCE". A sample that breaks a rule of the
+    /// ABI is skipped, and logged once per filter.
+    void collect_metrics(MetricSet& out) const;
 
 private:
     struct Instance;

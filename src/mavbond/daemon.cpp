@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "core/log.h"
+#include "core/metrics.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -149,6 +150,7 @@ std::optional<Daemon::StartError> Daemon::start() {
     started_ = loop_.now();
     start_local_source(true);
     open_status_socket();
+    open_metrics();
     // The timers read the current config each time, so a reload changes their periods.
     report_timer_ = loop_.schedule(config_->report_interval, [this] {
         report_.run(endpoints_, config_->report_interval);
@@ -189,6 +191,23 @@ void Daemon::open_status_socket() {
         status_ = std::move(st.value());
     else
         log_warning("%s: mavbondctl cannot reach this daemon", st.error().message.c_str());
+}
+
+void Daemon::open_metrics() {
+    metrics_.reset();
+    if (!config_->metrics.enabled)
+        return;
+    const MetricsConfig& mc = config_->metrics;
+    auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout},
+                                     loop_, [this] {
+                                         return metrics_document(endpoints_, router_, *chain_,
+                                                                 started_, loop_.now());
+                                     });
+    // As with the status socket: without its metrics the daemon still routes.
+    if (m)
+        metrics_ = std::move(m.value());
+    else
+        log_warning("%s: Prometheus cannot scrape this daemon", m.error().message.c_str());
 }
 
 void Daemon::dump_counters() const {
@@ -274,12 +293,15 @@ bool Daemon::reload() {
     }
 
     bool status_moved = old.status_socket != next->status_socket;
+    bool metrics_moved = !(old.metrics == next->metrics);
     bool identity_changed = !(old.identity == next->identity);
     config_ = std::move(next);
     log_set_level(config_->log_level);
     start_local_source(identity_changed);
     if (status_moved)
         open_status_socket();
+    if (metrics_moved)
+        open_metrics();
     log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
                kept.size(), stopped, started,
                failed ? (", " + std::to_string(failed) + " failed").c_str() : "",

@@ -14,6 +14,7 @@
 #include "core/event_loop.h"
 #include "core/link_events.h"
 #include "core/local_source.h"
+#include "core/metrics_http.h"
 #include "core/router.h"
 #include "core/status_socket.h"
 #include "endpoints/endpoint.h"
@@ -84,6 +85,7 @@ private:
     /// mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
     void start_local_source(bool identity_changed);
     void open_status_socket();
+    void open_metrics();
     void dump_counters() const;
 
     DaemonOptions opts_;
@@ -96,6 +98,7 @@ private:
     std::unique_ptr<LocalSource> local_source_;
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
     std::unique_ptr<StatusSocket> status_;
+    std::unique_ptr<MetricsHttpServer> metrics_;
     ProblemReport report_;
     EventLoop::Timer report_timer_;
     EventLoop::Timer route_timer_;

@@ -137,5 +137,32 @@ TEST_F(ChainTest, LoadErrorsCarryTheConfigPlace) {
     EXPECT_EQ(0u, chain.error().message.find("t.yaml:4:5: filter 'abi_version': " + kDir)) << chain.error().message;
 }
 
+TEST_F(ChainTest, PluginMetricsAreNamedLabelledAndChecked) {
+    auto chain = build("  - {plugin: good_plugin}\n  - {plugin: good_plugin, label: two}\n");
+    ASSERT_TRUE(chain.has_value()) << chain.error().message;
+    MetricSet set;
+    chain.value()->collect_metrics(set);
+    std::string text = set.text();
+    // Named mavbond_PLUGIN_NAME, counters _total, one family for both instances, the
+    // instance in `filter`, the plugin's label value escaped, the count exact.
+    EXPECT_NE(std::string::npos,
+              text.find("# HELP mavbond_good_plugin_frames_total Frames seen.\n"
+                        "# TYPE mavbond_good_plugin_frames_total counter\n"
+                        "mavbond_good_plugin_frames_total{filter=\"good_plugin\",link=\"a\\\"b\\\\c\\nd\"} "
+                        "18446744073709551000\n"
+                        "mavbond_good_plugin_frames_total{filter=\"good_plugin#2\",link=\"a\\\"b\\\\c\\nd\"} "
+                        "18446744073709551000\n"))
+        << text;
+    EXPECT_NE(std::string::npos, text.find("mavbond_good_plugin_ratio{filter=\"good_plugin\"} NaN\n"))
+        << text;
+    EXPECT_NE(std::string::npos,
+              text.find("mavbond_filter_dropped_total{filter=\"good_plugin#2\",plugin=\"good_plugin\"} 0\n"))
+        << text;
+    // The host's label is not the plugin's to set, and a name must be a name.
+    EXPECT_EQ(std::string::npos, text.find("stolen")) << text;
+    EXPECT_EQ(std::string::npos, text.find("bad-name")) << text;
+    EXPECT_EQ(std::string::npos, text.find("mine")) << text;
+}
+
 }  // namespace
 }  // namespace mavbond

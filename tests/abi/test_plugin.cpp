@@ -40,6 +40,35 @@ mavbond_verdict on_ingress(void* self, const mavbond_frame*, mavbond_frame_notes
     return MAVBOND_PASS;
 }
 
+// Samples that exercise the host's rules: escaping, a NaN gauge, and one it must refuse.
+void metrics(void* self, mavbond_metric_sink sink, void* ctx) {
+    mavbond_label odd[] = {{"link", "a\"b\\c\nd"}};
+    mavbond_metric_sample s{};
+    s.struct_size = sizeof s;
+    s.type = MAVBOND_METRIC_COUNTER;
+    s.name = "frames";
+    s.help = "Frames seen.";
+    s.labels = odd;
+    s.label_count = 1;
+    s.count = static_cast<Counter*>(self)->frames + 18446744073709551000ull;
+    sink(ctx, &s);
+    s = mavbond_metric_sample{};
+    s.struct_size = sizeof s;
+    s.type = MAVBOND_METRIC_GAUGE;
+    s.name = "ratio";
+    s.help = "Not known yet.";
+    s.value = 0.0 / 0.0;
+    sink(ctx, &s);
+    mavbond_label stolen[] = {{"filter", "mine"}};
+    s.name = "stolen";
+    s.labels = stolen;
+    s.label_count = 1;
+    sink(ctx, &s);
+    s.name = "bad-name";
+    s.label_count = 0;
+    sink(ctx, &s);
+}
+
 const mavbond_option kOptions[] = {
     {"label", MAVBOND_OPT_STRING, "none", "a free text, refused when 'bad'"},
     {"period", MAVBOND_OPT_DURATION, "1s", "a duration"},
@@ -57,6 +86,7 @@ mavbond_plugin_descriptor make_descriptor() {
     d.create = create;
     d.destroy = destroy;
     d.on_ingress = on_ingress;
+    d.metrics = metrics;
 #ifdef DEFECT_ABI_VERSION
     d.abi_version = MAVBOND_PLUGIN_ABI_VERSION + 41;
 #endif

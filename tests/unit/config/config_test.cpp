@@ -638,5 +638,54 @@ TEST(SameSettings, IgnoresWhereButNotWhat) {
     EXPECT_FALSE(same_settings(a->filters, {}));
 }
 
+// --- metrics: ------------------------------------------------------------------------------
+
+TEST(MetricsConfig, OffUnlessGivenAndLoopbackForAPort) {
+    auto none = parse("endpoints: [{name: a, type: udp, mode: server, address: 127.0.0.1:1}]\n");
+    ASSERT_TRUE(none.has_value()) << none.error().message;
+    EXPECT_FALSE(none.value().metrics.enabled);
+    auto port = parse("metrics: {listen: 9273}\n"
+                      "endpoints: [{name: a, type: udp, mode: server, address: 127.0.0.1:1}]\n");
+    ASSERT_TRUE(port.has_value()) << port.error().message;
+    const MetricsConfig& m = port.value().metrics;
+    EXPECT_TRUE(m.enabled);
+    EXPECT_EQ("127.0.0.1", m.host);
+    EXPECT_EQ(9273, m.port);
+    EXPECT_EQ(Duration(seconds(5)), m.timeout);
+    EXPECT_EQ(8u, m.max_connections);
+    auto all = parse(R"(
+metrics:
+  listen: 0.0.0.0:9100
+  timeout: 250ms
+  max_connections: 2
+endpoints: [{name: a, type: udp, mode: server, address: 127.0.0.1:1}]
+)");
+    ASSERT_TRUE(all.has_value()) << all.error().message;
+    EXPECT_EQ("0.0.0.0", all.value().metrics.host);
+    EXPECT_EQ(9100, all.value().metrics.port);
+    EXPECT_EQ(Duration(milliseconds(250)), all.value().metrics.timeout);
+    EXPECT_EQ(2u, all.value().metrics.max_connections);
+}
+
+TEST(MetricsConfig, ErrorsNameTheirPlace) {
+    auto error_of = [](const std::string& metrics) {
+        auto c = parse_config("metrics:\n" + metrics +
+                              "endpoints: [{name: a, type: udp, mode: server, address: 127.0.0.1:1}]\n",
+                              "t.yaml");
+        return c ? std::string("(loaded)") : c.error().message;
+    };
+    EXPECT_EQ("t.yaml:2:11: metrics: 'listen': port '0' is not in 1..65535",
+              error_of("  listen: 0\n"));
+    EXPECT_EQ("t.yaml:2:11: metrics: 'listen': host 'gcs.local' is not an IPv4 address (a.b.c.d) "
+              "or 'localhost'",
+              error_of("  listen: gcs.local:9273\n"));
+    EXPECT_EQ("t.yaml:3:3: metrics: unknown key 'path'", error_of("  listen: 1\n  path: /m\n"));
+    EXPECT_EQ("t.yaml:2:3: metrics: missing required key 'listen' (e.g. 127.0.0.1:9273)",
+              error_of("  timeout: 1s\n"));
+    EXPECT_EQ("t.yaml:3:20: metrics: 'max_connections': '0' is not in 1..1024",
+              error_of("  listen: 1\n  max_connections: 0\n"));
+    EXPECT_EQ(0u, error_of("  listen: 1\n  timeout: 0s\n").find("t.yaml:3:12: metrics: "));
+}
+
 }  // namespace
 }  // namespace mavbond
