@@ -140,6 +140,11 @@ public:
             add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
             add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
             add(now.tx_errors - was.tx_errors, "write errors");
+            add(now.sig_unsigned - was.sig_unsigned,
+                endpoints_[i]->config().signing.require ? "unsigned frames dropped"
+                                                        : "unsigned frames let through");
+            add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
+            add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
             if (!what.empty())
                 log_notice("[%s] %s in the last %.0fs", endpoints_[i]->name().c_str(), what.c_str(),
                            secs);
