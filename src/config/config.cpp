@@ -380,7 +380,7 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kKeys = {
         "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
         "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
-        "block_out", "bond"};
+        "block_out", "bond", "signing"};
     check_keys(view, ctx, &kKeys);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
