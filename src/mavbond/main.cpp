@@ -89,9 +89,11 @@ std::string counters_line(const Endpoint& e) {
 /// The status socket's document: every endpoint's counters, the bonds, and each filter's own
 /// status (the stats plugin's per-link and per-bond figures among them).
 std::string status_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
-                            const FilterChain& chain, TimePoint started, TimePoint now) {
+                            const FilterChain& chain, TimePoint started, TimePoint now,
+                            uint64_t status_refused) {
     std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
                       std::to_string(std::chrono::duration_cast<seconds>(now - started).count()) +
+                      ",\"status_refused\":" + std::to_string(status_refused) +
                       ",\"endpoints\":[";
     for (size_t i = 0; i < endpoints.size(); i++) {
         const Endpoint& e = *endpoints[i];
@@ -227,7 +229,8 @@ int run_daemon(const Options& opts) {
     std::unique_ptr<StatusSocket> status;
     if (!config->status_socket.empty()) {
         auto st = StatusSocket::open(config->status_socket, ev, [&] {
-            return status_document(*endpoints, router, *chain.value(), started, ev.now());
+            return status_document(*endpoints, router, *chain.value(), started, ev.now(),
+                                   status ? status->refused() : 0);
         });
         // Telemetry matters more than the status: without its socket the daemon still routes.
         if (st)
