@@ -6,6 +6,7 @@ children drop to uid/gid 65534 to play the other users."""
 from __future__ import annotations
 
 import json
+import re
 import os
 import shutil
 import signal
@@ -176,3 +177,36 @@ def test_loopback_listeners_bind_loopback_only(start_daemon):
     assert udp == [HOST], "one UDP socket, on 127.0.0.1 only (not 0.0.0.0)"
     assert tcp == [HOST]
     assert d.stop() == 0
+
+
+# The shipped configs' listeners off loopback, each needed and explained in its comment: a GCS
+# on another machine, the vehicle's LTE modem on the internet. Anything else binds 127.0.0.1.
+PUBLIC_ON_PURPOSE = {
+    "conf/mavbond.yaml": {"gcs"},
+    "conf/examples/ground-side.yaml": {"lte", "qgc"},
+    "conf/examples/air-side.yaml": set(),
+}
+
+
+@pytest.mark.parametrize("rel", sorted(PUBLIC_ON_PURPOSE))
+def test_shipped_configs_listen_publicly_only_where_needed(rel):
+    from helpers import REPO
+    text = (REPO / rel).read_text()
+    servers, names, name, mode = {}, [], None, None
+    for line in text.splitlines():
+        code = line.split("#", 1)[0]
+        if m := re.match(r"\s*-\s*name:\s*(\S+)", code):
+            name, mode = m.group(1), None
+            names.append(name)
+        elif m := re.match(r"\s*mode:\s*(\S+)", code):
+            mode = m.group(1)
+        elif (m := re.match(r"\s*address:\s*(\S+):\d+", code)) and mode == "server":
+            servers[name] = m.group(1)
+    public = {n for n, host in servers.items() if host != HOST}
+    print(f"\n{rel}: endpoints {names}, servers {servers}")
+    assert len(names) >= 2, "the parser found the endpoints"
+    assert public == PUBLIC_ON_PURPOSE[rel]
+    for n in public:  # the reason is written next to the address
+        block = text[text.index(f"name: {n}"):]
+        address_line = next(l for l in block.splitlines() if "address:" in l)
+        assert "#" in address_line, f"{n}: no comment says why it listens on {servers[n]}"
