@@ -21,6 +21,7 @@
 
 #include "mavlink/frame.h"
 #include "mavlink/message_table.h"
+#include "mavlink/signing.h"
 
 namespace mavbond {
 namespace {
@@ -169,6 +170,7 @@ private:
 
     void parse_endpoint(const YAML::Node& node, size_t index);
     void parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const;
+    void parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const;
     void parse_bond(const YAML::Node& node, size_t index);
     void parse_filter(const YAML::Node& node, size_t index);
     void parse_identity(const Entry& section);
@@ -390,7 +392,7 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kKeys = {
         "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
         "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
-        "block_out", "bond"};
+        "block_out", "bond", "signing"};
     check_keys(view, ctx, &kKeys);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
@@ -421,7 +423,7 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
 
     // Which keys this type (and mode) takes, beyond the common ones.
     std::set<std::string_view> own = {"name", "type", "tx_queue", "allow_in", "block_in",
-                                      "allow_out", "block_out", "bond"};
+                                      "allow_out", "block_out", "bond", "signing"};
     std::set<std::string_view> by_type;  // keys the type takes in some mode
     switch (ep.type) {
     case EndpointType::Udp:
@@ -520,6 +522,8 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
             fail(value_mark(*e), ctx + "'bond' must not be empty");
         bond_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*e)});
     }
+    if (const Entry* e = view.find("signing"))
+        parse_signing(*e, ctx, ep.signing);
     config_.endpoints.push_back(std::move(ep));
 }
 
@@ -543,6 +547,28 @@ void Parser::parse_address(const Entry& e, const std::string& ctx, EndpointConfi
         fail(value_mark(e), where + "port '" + port_text + "' is not in 1..65535");
     ep.host = host;
     ep.port = static_cast<uint16_t>(*port);
+}
+
+void Parser::parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const {
+    std::string where = ctx + "'signing': ";
+    if (!e.value.IsMap())
+        fail(value_mark(e), where + "must be a map (key_file, require), not " + kind_name(e.value));
+    MapView view = make_view(e.value);
+    static const std::set<std::string_view> kKeys = {"key_file", "require"};
+    check_keys(view, where, &kKeys);
+    signing.enabled = true;
+    std::string file = required_scalar(view, e.value, "key_file", where);
+    // A relative path is read from the config file's directory, wherever the daemon runs.
+    auto slash = name_.rfind('/');
+    if (file[0] != '/' && slash != std::string::npos)
+        file = name_.substr(0, slash + 1) + file;
+    signing.key_file = file;
+    auto key = load_signing_key(file);
+    if (!key)
+        fail(value_mark(*view.find("key_file")), where + key.error().message);
+    signing.key = key.value();
+    if (const Entry* r = view.find("require"))
+        signing.require = boolean(*r, where);
 }
 
 void Parser::parse_bond(const YAML::Node& node, size_t index) {

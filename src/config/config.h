@@ -2,6 +2,7 @@
 // file:line:column and the key; the daemon exits with 78 (EX_CONFIG) on any of them.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -33,6 +34,15 @@ struct MessageFilterConfig {
     bool operator==(const MessageFilterConfig&) const = default;
 };
 
+/// An endpoint's `signing:` block: incoming frames must carry a MAVLink 2 signature that
+/// verifies against the key.
+struct SigningConfig {
+    bool enabled = false;              // a `signing:` block is present
+    bool require = true;               // false: unsigned frames pass (signed ones are checked)
+    std::string key_file;              // as resolved (relative to the config file's directory)
+    std::array<uint8_t, 32> key{};     // read at load time
+};
+
 enum class EndpointType { Udp, Tcp, Uart };
 enum class EndpointMode { Server, Client };  // udp, tcp
 
@@ -52,6 +62,7 @@ struct EndpointConfig {
     MessageFilterConfig filter_in;             // keys allow_in / block_in
     MessageFilterConfig filter_out;            // keys allow_out / block_out
     std::string bond;                          // bond name ("" = none); used by the bonding layer
+    SigningConfig signing;                     // key `signing`
     SourceMark mark;                           // where this endpoint was declared
     bool operator==(const EndpointConfig&) const = default;
 };

@@ -160,6 +160,9 @@ void Router::deliver(const Frame& frame, Endpoint& to, TimePoint now) {
 }
 
 void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
+    // A frame that fails the endpoint's signing check is nobody's: it may not even teach a route.
+    if (!from.authentic(frame))
+        return;
     // Only a frame whose CRC was checked may teach a route: noise never creates one.
     if (frame.crc_checked)
         learn(from, frame.sysid, frame.compid, now);

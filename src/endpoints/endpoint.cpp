@@ -20,6 +20,9 @@ EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
     tx_filtered += o.tx_filtered;
     tx_dropped += o.tx_dropped;
     tx_errors += o.tx_errors;
+    sig_unsigned += o.sig_unsigned;
+    sig_bad += o.sig_bad;
+    sig_replay += o.sig_replay;
     return *this;
 }
 
@@ -32,9 +35,15 @@ bool MessageFilter::passes(uint32_t msgid) const {
     return !has(config_.block);
 }
 
-Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode)
+Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
+                   const Endpoint* parent)
     : config_(config), name_(std::move(name)), tx_(mode, config.tx_queue_bytes),
-      filter_in_(config_.filter_in), filter_out_(config_.filter_out) {}
+      filter_in_(config_.filter_in), filter_out_(config_.filter_out) {
+    if (parent)
+        verifier_ = parent->verifier_;
+    else if (config.signing.enabled)
+        verifier_ = std::make_shared<SignatureVerifier>(config.signing.key);
+}
 
 Endpoint::~Endpoint() = default;
 
@@ -42,6 +51,23 @@ bool Endpoint::accept_in(const Frame& frame) {
     if (filter_in_.empty() || filter_in_.passes(frame.msgid))
         return true;
     stats_.rx_filtered++;
+    return false;
+}
+
+bool Endpoint::check_signature(const Frame& frame) {
+    switch (verifier_->check(frame)) {
+    case SignatureVerifier::Verdict::Accept:
+        return true;
+    case SignatureVerifier::Verdict::Unsigned:
+        stats_.sig_unsigned++;
+        return !config_.signing.require;
+    case SignatureVerifier::Verdict::BadSignature:
+        stats_.sig_bad++;
+        return false;
+    case SignatureVerifier::Verdict::Replay:
+        stats_.sig_replay++;
+        return false;
+    }
     return false;
 }
 

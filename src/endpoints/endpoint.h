@@ -13,6 +13,7 @@
 #include "endpoints/tx_queue.h"
 #include "mavlink/frame.h"
 #include "mavlink/frame_parser.h"
+#include "mavlink/signing.h"
 
 namespace mavbond {
 
@@ -27,6 +28,9 @@ struct EndpointStats {
     uint64_t tx_filtered = 0;   // dropped by allow_out/block_out
     uint64_t tx_dropped = 0;    // transmit queue full, link down, or a write error
     uint64_t tx_errors = 0;     // hard write errors (ICMP unreachable, EIO, ...)
+    uint64_t sig_unsigned = 0;  // signing endpoints: unsigned frames (dropped when required)
+    uint64_t sig_bad = 0;       // signing endpoints: dropped, signature does not verify
+    uint64_t sig_replay = 0;    // signing endpoints: dropped, timestamp replayed or too old
 
     EndpointStats& operator+=(const EndpointStats& o);
 };
@@ -47,6 +51,9 @@ void for_each_counter(const EndpointStats& s, F&& f) {
     f("tx_filtered", s.tx_filtered);
     f("tx_dropped", s.tx_dropped);
     f("tx_errors", s.tx_errors);
+    f("sig_unsigned", s.sig_unsigned);
+    f("sig_bad", s.sig_bad);
+    f("sig_replay", s.sig_replay);
 }
 
 /// Allow/block lists; an empty allow list allows everything, block wins.
@@ -66,8 +73,11 @@ public:
     static constexpr uint32_t kNoId = UINT32_MAX;
 
     /// The endpoint keeps its own copy of `config`: a reload replaces the daemon's Config
-    /// while the endpoints it did not change keep running.
-    Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode);
+    /// while the endpoints it did not change keep running. A child (a UDP peer, a TCP
+    /// connection) names its `parent` server: they share one signature verifier, so a frame
+    /// replayed from a new address is still a replay.
+    Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
+             const Endpoint* parent = nullptr);
     virtual ~Endpoint();
     Endpoint(const Endpoint&) = delete;
     Endpoint& operator=(const Endpoint&) = delete;
@@ -93,6 +103,9 @@ public:
 
     /// Whether an incoming frame passes allow_in/block_in (counted when it does not).
     bool accept_in(const Frame& frame);
+    /// Whether an incoming frame passes the endpoint's `signing:` check (counted when it does
+    /// not); true without one. The router asks before the frame can teach a route.
+    bool authentic(const Frame& frame) { return !verifier_ || check_signature(frame); }
 
     /// Counters of this endpoint alone.
     const EndpointStats& stats() const { return stats_; }
@@ -115,12 +128,15 @@ protected:
     EndpointStats stats_;
 
 private:
+    bool check_signature(const Frame& frame);
+
     const EndpointConfig config_;  // before the filters, which point into it
     std::string name_;
     uint32_t id_ = kNoId;
     TxQueue tx_;
     MessageFilter filter_in_;
     MessageFilter filter_out_;
+    std::shared_ptr<SignatureVerifier> verifier_;  // null unless the config has `signing:`
 };
 
 /// Builds one endpoint of `config` (whose global settings it takes).

@@ -12,8 +12,8 @@
 namespace mavbond {
 
 StreamEndpoint::StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
-                               Router& router, UnknownIdPolicy policy)
-    : Endpoint(config, std::move(name), TxQueue::Mode::Stream), loop_(loop), router_(router),
+                               Router& router, UnknownIdPolicy policy, const Endpoint* parent)
+    : Endpoint(config, std::move(name), TxQueue::Mode::Stream, parent), loop_(loop), router_(router),
       parser_(policy, 8192) {}
 
 StreamEndpoint::~StreamEndpoint() = default;

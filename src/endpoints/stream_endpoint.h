@@ -27,7 +27,7 @@ private:
 class StreamEndpoint : public Endpoint {
 public:
     StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, Router& router,
-                   UnknownIdPolicy policy);
+                   UnknownIdPolicy policy, const Endpoint* parent = nullptr);
     ~StreamEndpoint() override;
     bool ready() const override { return fd_.valid(); }
 

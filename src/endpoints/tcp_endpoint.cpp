@@ -25,7 +25,7 @@ void set_nodelay(int fd) {
 
 TcpConnection::TcpConnection(TcpServer& server, const sockaddr_in& peer)
     : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop_,
-                     server.router_, server.policy_),
+                     server.router_, server.policy_, &server),
       server_(server) {}
 
 TcpConnection::~TcpConnection() { router_.remove(*this); }

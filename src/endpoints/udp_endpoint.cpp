@@ -66,7 +66,8 @@ void route_datagram(std::span<const uint8_t> data, Endpoint& from, EndpointStats
 // --- UdpPeer -------------------------------------------------------------------------------
 
 UdpPeer::UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now)
-    : Endpoint(server.config(), server.name() + "@" + to_string(addr), TxQueue::Mode::Datagram),
+    : Endpoint(server.config(), server.name() + "@" + to_string(addr), TxQueue::Mode::Datagram,
+               &server),
       server_(server), addr_(addr), last_heard_(now) {}
 
 int UdpPeer::write_datagrams(const iovec* frames, size_t count) {

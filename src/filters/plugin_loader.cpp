@@ -3,6 +3,7 @@
 #include <dlfcn.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -25,6 +26,24 @@ Result<std::unique_ptr<LoadedPlugin>> LoadedPlugin::load(const std::string& dir,
                                                          const std::string& name) {
     std::string path = dir + "/" + name + ".so";
     auto refuse = [&path](const std::string& why) -> Error { return make_error(path + ": " + why); };
+
+    // The config allows only these names; checked again here, so no caller can reach a file
+    // outside the directory ("../x", "/abs").
+    bool plain = !name.empty() && std::all_of(name.begin(), name.end(), [](char c) {
+        return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_';
+    });
+    if (!plain)
+        return make_error("invalid plugin name '" + name + "' (allowed characters: a-z 0-9 _)");
+    // Whoever may write the directory may put any file under a plugin's name.
+    struct stat dir_st {};
+    if (stat(dir.c_str(), &dir_st) < 0)
+        return make_error("plugin_dir " + dir + ": " + strerror(errno));
+    if (dir_st.st_mode & (S_IWGRP | S_IWOTH)) {
+        char mode[8];
+        snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(dir_st.st_mode & 07777));
+        return make_error("plugin_dir " + dir + ": refusing a plugin directory that others than "
+                          "its owner may write (mode " + std::string(mode) + ")");
+    }
 
     struct stat st {};
     if (stat(path.c_str(), &st) < 0)

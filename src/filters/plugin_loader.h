@@ -1,5 +1,5 @@
 // Loads a filter plugin (NAME.so from plugin_dir) and checks it before anything of it runs:
-// a file that exists and nobody but its owner may write, an entry symbol, the exact ABI
+// a plain name ([a-z0-9_]), a directory and a file that nobody but their owner may write, an entry symbol, the exact ABI
 // version, a descriptor of at least the known size, the name it claims, create/destroy.
 // Every refusal names the file; the handle is closed on every path.
 #pragma once

@@ -60,6 +60,10 @@ void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration in
         add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
         add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
         add(now.tx_errors - was.tx_errors, "write errors");
+        add(now.sig_unsigned - was.sig_unsigned,
+            e->config().signing.require ? "unsigned frames dropped" : "unsigned frames let through");
+        add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
+        add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
         if (!what.empty())
             log_notice("[%s] %s in the last %.0fs", e->name().c_str(), what.c_str(), secs);
         was = now;
@@ -313,6 +317,7 @@ std::string Daemon::status_document() const {
     TimePoint now = loop_.now();
     std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
                       std::to_string(std::chrono::duration_cast<seconds>(now - started_).count()) +
+                      ",\"status_refused\":" + std::to_string(status_ ? status_->refused() : 0) +
                       ",\"endpoints\":[";
     for (size_t i = 0; i < endpoints_.size(); i++) {
         const Endpoint& e = *endpoints_[i];

@@ -75,6 +75,16 @@ void print_table(const pt::ptree& doc) {
                e.get("garbage_bytes", "").c_str(), e.get("tx_frames", "").c_str(),
                e.get("tx_dropped", "").c_str());
     }
+    // Signing endpoints: what their check dropped (unsigned frames pass when not required).
+    for (const auto& [_, e] : doc.get_child("endpoints", {})) {
+        auto unsigned_ = e.get("sig_unsigned", 0ull), bad = e.get("sig_bad", 0ull),
+             replay = e.get("sig_replay", 0ull);
+        if (unsigned_ + bad + replay > 0)
+            printf("signing %s: %llu unsigned, %llu bad signature, %llu replayed or stale\n",
+                   e.get("name", "").c_str(), unsigned_, bad, replay);
+    }
+    if (auto refused = doc.get("status_refused", 0ull); refused > 0)
+        printf("status socket: %llu connections refused (credentials)\n", refused);
     auto bonds = doc.get_child("bonds", {});
     if (!bonds.empty()) {
         printf("\n%-12s %-10s %-20s %8s\n", "BOND", "TX", "ACTIVE LINK", "SWITCHES");

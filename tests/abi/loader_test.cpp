@@ -70,6 +70,46 @@ TEST(PluginLoader, RefusesAFileOthersMayWrite) {
     std::filesystem::remove_all(dir);
 }
 
+TEST(PluginLoader, RefusesADirectoryOthersMayWrite) {
+    auto dir = std::filesystem::temp_directory_path() / ("mavbond-abi-dir-" + std::to_string(getpid()));
+    std::filesystem::create_directories(dir);
+    std::filesystem::copy_file(kDir + "/good_plugin.so", dir / "good_plugin.so",
+                               std::filesystem::copy_options::overwrite_existing);
+    chmod((dir / "good_plugin.so").c_str(), 0644);
+    for (mode_t mode : {0777, 0775, 0757, 01777}) {
+        chmod(dir.c_str(), mode);
+        std::string e = load_error("good_plugin", dir.string());
+        char want[80];
+        snprintf(want, sizeof want, "that others than its owner may write (mode %04o)", mode);
+        EXPECT_NE(std::string::npos, e.find(want)) << e;
+        EXPECT_NE(std::string::npos, e.find("plugin_dir " + dir.string())) << e;
+    }
+    chmod(dir.c_str(), 0755);
+    EXPECT_TRUE(LoadedPlugin::load(dir.string(), "good_plugin").has_value());
+    std::filesystem::remove_all(dir);
+}
+
+TEST(PluginLoader, RefusesNamesThatLeaveTheDirectory) {
+    // good_plugin.so one level up, reachable as "../abi/good_plugin" if names were paths.
+    for (const char* name : {"../abi/good_plugin", "/tmp/good_plugin", "good_plugin/", "..",
+                             "good.plugin", "Good_plugin", "good-plugin", ""}) {
+        std::string e = load_error(name);
+        EXPECT_NE(std::string::npos, e.find("invalid plugin name")) << name << ": " << e;
+    }
+}
+
+TEST(PluginConfig, NamesOutsideAToZDigitsUnderscoreAreConfigErrors) {
+    for (const char* name : {"../evil", "/usr/lib/evil", "a/b", "..", "dedup.so", "De-dup", "x y"}) {
+        auto cfg = parse_config(std::string("endpoints:\n"
+                                            "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9}\n"
+                                            "filters:\n  - plugin: \"") + name + "\"\n", "t.yaml");
+        ASSERT_FALSE(cfg.has_value()) << name;
+        EXPECT_EQ(0u, cfg.error().message.find("t.yaml:4:13: filter #1: invalid plugin name '" +
+                                              std::string(name) + "'"))
+            << cfg.error().message;
+    }
+}
+
 /// The chain builds from a real config: its errors carry the filter's file:line:column.
 class ChainTest : public ::testing::Test {
 protected:
