@@ -40,7 +40,8 @@ struct SigningConfig {
     bool enabled = false;              // a `signing:` block is present
     bool require = true;               // false: unsigned frames pass (signed ones are checked)
     std::string key_file;              // as resolved (relative to the config file's directory)
-    std::array<uint8_t, 32> key{};     // read at load time
+    std::array<uint8_t, 32> key{};     // read at load time (a new key restarts the endpoint)
+    bool operator==(const SigningConfig&) const = default;
 };
 
 enum class EndpointType { Udp, Tcp, Uart };
