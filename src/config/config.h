@@ -31,7 +31,7 @@ struct MessageFilterConfig {
     std::vector<uint32_t> block;
 };
 
-enum class EndpointType { Udp, Tcp, Uart };
+enum class EndpointType { Udp, Tcp, Uart, Tlog };
 enum class EndpointMode { Server, Client };  // udp, tcp
 
 struct EndpointConfig {
@@ -50,6 +50,8 @@ struct EndpointConfig {
     MessageFilterConfig filter_in;             // keys allow_in / block_in
     MessageFilterConfig filter_out;            // keys allow_out / block_out
     std::string bond;                          // bond name ("" = none); used by the bonding layer
+    std::string directory;                     // tlog: where the .tlog files go
+    uint64_t max_size = 0;                     // tlog: a new file past this many bytes; 0 = no limit
     SourceMark mark;                           // where this endpoint was declared
 };
 

@@ -70,7 +70,7 @@ void Endpoint::flush() {
     if (tx_.empty())
         return;
     TxQueue::WriteResult r;
-    if (config_.type == EndpointType::Udp) {
+    if (tx_.mode() == TxQueue::Mode::Datagram) {
         r = tx_.write_datagrams(
             [](void* self, const iovec* frames, size_t count) {
                 return static_cast<Endpoint*>(self)->write_datagrams(frames, count);
@@ -88,7 +88,7 @@ void Endpoint::flush() {
     stats_.tx_dropped += r.frames_dropped;
     if (r.error != 0) {
         stats_.tx_errors++;
-        if (config_.type != EndpointType::Udp)
+        if (tx_.mode() == TxQueue::Mode::Stream)
             on_write_error(r.error);
     }
     on_backlog(tx_.has_backlog());

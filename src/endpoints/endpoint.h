@@ -82,6 +82,9 @@ public:
     /// True when the endpoint can take frames now (a TCP client that is connected, a UART
     /// that is open). Frames routed to an endpoint that is not ready are dropped and counted.
     virtual bool ready() const { return true; }
+    /// True for a recorder (a flight log): the router sends it every frame it routes, a
+    /// targeted frame too, wherever its target was heard.
+    virtual bool receives_everything() const { return false; }
 
     /// Accepts a frame for transmission if allow_out/block_out let it through. The frame's
     /// bytes are lent until flush(). Returns true when the endpoint became dirty (needs flush).
