@@ -20,6 +20,7 @@ EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
     tx_filtered += o.tx_filtered;
     tx_dropped += o.tx_dropped;
     tx_errors += o.tx_errors;
+    last_rx = std::max(last_rx, o.last_rx);
     return *this;
 }
 

@@ -27,6 +27,7 @@ struct EndpointStats {
     uint64_t tx_filtered = 0;   // dropped by allow_out/block_out
     uint64_t tx_dropped = 0;    // transmit queue full, link down, or a write error
     uint64_t tx_errors = 0;     // hard write errors (ICMP unreachable, EIO, ...)
+    TimePoint last_rx{};        // when a frame last came in (epoch: never); not a counter
 
     EndpointStats& operator+=(const EndpointStats& o);
 };
