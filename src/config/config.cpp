@@ -29,6 +29,7 @@ namespace {
 constexpr uint32_t kMaxMessageId = 0xFFFFFF;           // MAVLink v2 msgid is 24 bits
 constexpr size_t kMinTxQueueBytes = kMaxFrameLen;      // one largest frame (280 bytes)
 constexpr size_t kMaxTxQueueBytes = 64u * 1024 * 1024; // a typo guard, far above any real need
+constexpr uint64_t kMinTlogFileBytes = 4096;          // many records per file, never one
 constexpr std::string_view kDurationExamples = "e.g. 250ms, 2s, 1.5s, 1m";
 
 struct ConfigError {
@@ -63,6 +64,28 @@ std::optional<uint64_t> parse_u64(std::string_view s) {
     if (ec != std::errc() || ptr != s.data() + s.size())
         return std::nullopt;
     return v;
+}
+
+/// "16384", "16k", "16KiB", "64M", "64MiB", "1G", "1GiB" -> bytes; nullopt on anything else or
+/// overflow.
+std::optional<uint64_t> parse_byte_size(std::string_view text) {
+    uint64_t unit = 1;
+    for (auto [suffix, mult] : {std::pair<std::string_view, uint64_t>{"KiB", 1024},
+                                {"k", 1024},
+                                {"MiB", 1024 * 1024},
+                                {"M", 1024 * 1024},
+                                {"GiB", 1024 * 1024 * 1024},
+                                {"G", 1024 * 1024 * 1024}}) {
+        if (text.size() > suffix.size() && text.ends_with(suffix)) {
+            text.remove_suffix(suffix.size());
+            unit = mult;
+            break;
+        }
+    }
+    auto n = parse_u64(text);
+    if (!n || *n > std::numeric_limits<uint64_t>::max() / unit)
+        return std::nullopt;
+    return *n * unit;
 }
 
 std::string format_duration(Duration d) {
@@ -392,7 +415,7 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kKeys = {
         "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
         "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
-        "block_out", "bond", "signing"};
+        "block_out", "bond", "signing", "directory", "max_size"};
     check_keys(view, ctx, &kKeys);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
@@ -403,15 +426,17 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     }
 
     if (!view.find("type"))
-        fail(node.Mark(), ctx + "missing required key 'type' (udp, tcp or uart)");
+        fail(node.Mark(), ctx + "missing required key 'type' (udp, tcp, uart or tlog)");
     ep.type = choice<EndpointType>(*view.find("type"), ctx,
                                    {{"udp", EndpointType::Udp},
                                     {"tcp", EndpointType::Tcp},
-                                    {"uart", EndpointType::Uart}});
-    const char* type_word = ep.type == EndpointType::Udp   ? "udp"
-                            : ep.type == EndpointType::Tcp ? "tcp"
-                                                           : "uart";
-    bool networked = ep.type != EndpointType::Uart;
+                                    {"uart", EndpointType::Uart},
+                                    {"tlog", EndpointType::Tlog}});
+    const char* type_word = ep.type == EndpointType::Udp    ? "udp"
+                            : ep.type == EndpointType::Tcp  ? "tcp"
+                            : ep.type == EndpointType::Uart ? "uart"
+                                                            : "tlog";
+    bool networked = ep.type == EndpointType::Udp || ep.type == EndpointType::Tcp;
     if (networked) {
         if (!view.find("mode"))
             fail(node.Mark(), ctx + "missing required key 'mode' (server or client)");
@@ -442,6 +467,11 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
         by_type = {"device", "baud", "flow_control", "reconnect_min", "reconnect_max"};
         own.insert(by_type.begin(), by_type.end());
         break;
+    case EndpointType::Tlog:
+        // A log only takes what is routed to it: nothing comes in, it is no link of a bond.
+        by_type = {"directory", "max_size"};
+        own = {"name", "type", "tx_queue", "allow_out", "block_out", "directory", "max_size"};
+        break;
     }
     for (const auto& e : view.entries) {
         if (own.count(e.name))
@@ -456,6 +486,19 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
         if (!view.find("address"))
             fail(node.Mark(), ctx + "missing required key 'address' (host:port)");
         parse_address(*view.find("address"), ctx, ep);
+    } else if (ep.type == EndpointType::Tlog) {
+        ep.directory = required_scalar(view, node, "directory", ctx);
+        if (const Entry* e = view.find("max_size")) {
+            const std::string& text = scalar(*e, ctx);
+            auto n = parse_byte_size(text);
+            if (!n)
+                fail(value_mark(*e), ctx + "'max_size': '" + text +
+                                         "' is not a size in bytes (e.g. 64MiB, 1GiB)");
+            if (*n < kMinTlogFileBytes)
+                fail(value_mark(*e), ctx + "'max_size': " + text + " is below the minimum of " +
+                                         std::to_string(kMinTlogFileBytes) + " bytes");
+            ep.max_size = *n;
+        }
     } else {
         ep.device = required_scalar(view, node, "device", ctx);
         if (const Entry* e = view.find("baud")) {
@@ -485,28 +528,16 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
 
     if (const Entry* e = view.find("tx_queue")) {
         const std::string& text = scalar(*e, ctx);
-        std::string_view digits = text;
-        uint64_t unit = 1;
-        for (auto [suffix, mult] : {std::pair<std::string_view, uint64_t>{"KiB", 1024},
-                                    {"k", 1024},
-                                    {"MiB", 1024 * 1024},
-                                    {"M", 1024 * 1024}}) {
-            if (digits.size() > suffix.size() && digits.ends_with(suffix)) {
-                digits.remove_suffix(suffix.size());
-                unit = mult;
-                break;
-            }
-        }
-        auto n = parse_u64(digits);
-        if (!n || *n > kMaxTxQueueBytes / unit)
+        auto n = parse_byte_size(text);
+        if (!n || *n > kMaxTxQueueBytes)
             fail(value_mark(*e), ctx + "'tx_queue': '" + text +
                                      "' is not a size in bytes (e.g. 16384, 16k, 16KiB; at most "
                                      "64MiB)");
-        if (*n * unit < kMinTxQueueBytes)
+        if (*n < kMinTxQueueBytes)
             fail(value_mark(*e), ctx + "'tx_queue': " + text + " is below the minimum of " +
                                      std::to_string(kMinTxQueueBytes) +
                                      " bytes (one largest frame)");
-        ep.tx_queue_bytes = static_cast<size_t>(*n * unit);
+        ep.tx_queue_bytes = static_cast<size_t>(*n);
     }
     if (const Entry* e = view.find("allow_in"))
         ep.filter_in.allow = message_ids(*e, ctx);

@@ -44,7 +44,7 @@ struct SigningConfig {
     bool operator==(const SigningConfig&) const = default;
 };
 
-enum class EndpointType { Udp, Tcp, Uart };
+enum class EndpointType { Udp, Tcp, Uart, Tlog };
 enum class EndpointMode { Server, Client };  // udp, tcp
 
 struct EndpointConfig {
@@ -64,6 +64,8 @@ struct EndpointConfig {
     MessageFilterConfig filter_out;            // keys allow_out / block_out
     std::string bond;                          // bond name ("" = none); used by the bonding layer
     SigningConfig signing;                     // key `signing`
+    std::string directory;                     // tlog: where the .tlog files go
+    uint64_t max_size = 0;                     // tlog: a new file past this many bytes; 0 = no limit
     SourceMark mark;                           // where this endpoint was declared
     bool operator==(const EndpointConfig&) const = default;
 };

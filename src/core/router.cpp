@@ -159,6 +159,13 @@ void Router::deliver(const Frame& frame, Endpoint& to, TimePoint now) {
         dirty_.push_back(&to);
 }
 
+void Router::deliver_to_recorders(const Endpoint& from, const Frame& frame, TimePoint now) {
+    for (Endpoint* to : endpoints_) {
+        if (to && to->receives_everything() && may_send(from, *to))
+            deliver(frame, *to, now);
+    }
+}
+
 void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
     // A frame that fails the endpoint's signing check is nobody's: it may not even teach a route.
     if (!from.authentic(frame))
@@ -188,8 +195,10 @@ void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
                 if (may_send(from, *to))
                     deliver(frame, *to, now);
             }
-            if (found)
+            if (found) {
+                deliver_to_recorders(from, frame, now);
                 return;
+            }
             if (want_comp == 0)
                 break;
         }

@@ -6,6 +6,8 @@
 // through the bond, and a frame never goes back into the bond it came from (no reflection from
 // link A to link B). A bond sends on every member (`tx: broadcast`) or only on its active one
 // (`tx: active`, chosen by the link-switch filter).
+//
+// Recorders (a flight log) get every routed frame, targeted ones included.
 #pragma once
 
 #include <cstdint>
@@ -101,6 +103,9 @@ private:
     /// Whether `to` may send under its bond's tx policy (always, outside a bond).
     bool bond_lets_send(const Endpoint& to) const;
     void deliver(const Frame& frame, Endpoint& to, TimePoint now);
+    /// A targeted frame that found its target also goes to endpoints that record everything
+    /// (they never learn routes, so the targeted path passes them by).
+    void deliver_to_recorders(const Endpoint& from, const Frame& frame, TimePoint now);
 
     Duration route_timeout_;
     std::vector<Bond> bonds_;

@@ -23,6 +23,7 @@ EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
     sig_unsigned += o.sig_unsigned;
     sig_bad += o.sig_bad;
     sig_replay += o.sig_replay;
+    last_rx = std::max(last_rx, o.last_rx);
     return *this;
 }
 
@@ -96,7 +97,7 @@ void Endpoint::flush() {
     if (tx_.empty())
         return;
     TxQueue::WriteResult r;
-    if (config_.type == EndpointType::Udp) {
+    if (tx_.mode() == TxQueue::Mode::Datagram) {
         r = tx_.write_datagrams(
             [](void* self, const iovec* frames, size_t count) {
                 return static_cast<Endpoint*>(self)->write_datagrams(frames, count);
@@ -114,7 +115,7 @@ void Endpoint::flush() {
     stats_.tx_dropped += r.frames_dropped;
     if (r.error != 0) {
         stats_.tx_errors++;
-        if (config_.type != EndpointType::Udp)
+        if (tx_.mode() == TxQueue::Mode::Stream)
             on_write_error(r.error);
     }
     on_backlog(tx_.has_backlog());

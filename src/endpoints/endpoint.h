@@ -31,6 +31,7 @@ struct EndpointStats {
     uint64_t sig_unsigned = 0;  // signing endpoints: unsigned frames (dropped when required)
     uint64_t sig_bad = 0;       // signing endpoints: dropped, signature does not verify
     uint64_t sig_replay = 0;    // signing endpoints: dropped, timestamp replayed or too old
+    TimePoint last_rx{};        // when a frame last came in (epoch: never); not a counter
 
     EndpointStats& operator+=(const EndpointStats& o);
 };
@@ -93,6 +94,9 @@ public:
     /// True when the endpoint can take frames now (a TCP client that is connected, a UART
     /// that is open). Frames routed to an endpoint that is not ready are dropped and counted.
     virtual bool ready() const { return true; }
+    /// True for a recorder (a flight log): the router sends it every frame it routes, a
+    /// targeted frame too, wherever its target was heard.
+    virtual bool receives_everything() const { return false; }
 
     /// Accepts a frame for transmission if allow_out/block_out let it through. The frame's
     /// bytes are lent until flush(). Returns true when the endpoint became dirty (needs flush).

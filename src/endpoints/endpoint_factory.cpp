@@ -1,5 +1,6 @@
 #include "endpoints/endpoint.h"
 #include "endpoints/tcp_endpoint.h"
+#include "endpoints/tlog_endpoint.h"
 #include "endpoints/uart_endpoint.h"
 #include "endpoints/udp_endpoint.h"
 
@@ -22,6 +23,8 @@ Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& ep, const Config& conf
                                                : upcast(TcpClient::open(ep, loop, router, policy));
     case EndpointType::Uart:
         return Endpoint::Ptr(UartEndpoint::open(ep, loop, router, policy));
+    case EndpointType::Tlog:
+        return Endpoint::Ptr(TlogEndpoint::open(ep, loop, router));
     }
     return make_error("unknown endpoint type");
 }

@@ -69,8 +69,10 @@ void StreamEndpoint::read_frames() {
             parser_.commit(static_cast<size_t>(n));
             TimePoint now = loop_.now();
             Frame frame;
-            while (parser_.next(frame))
+            while (parser_.next(frame)) {
                 router_.handle_frame(*this, frame, now);
+                stats_.last_rx = now;
+            }
             stats_.rx = parser_.counters();
             // Frames lent to other endpoints point into the parser: send before reading on.
             router_.end_batch();

@@ -21,6 +21,7 @@ public:
 
     /// Lends a frame until the next write(). False when the lend table is full (write first).
     bool lend(std::span<const uint8_t> frame);
+    Mode mode() const { return mode_; }
     bool has_lent() const { return !lent_.empty(); }
     bool has_backlog() const { return backlog_frames_ != 0; }
     bool empty() const { return !has_lent() && !has_backlog(); }

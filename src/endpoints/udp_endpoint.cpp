@@ -57,8 +57,10 @@ void route_datagram(std::span<const uint8_t> data, Endpoint& from, EndpointStats
                     UnknownIdPolicy policy, Router& router, TimePoint now) {
     DatagramParser parser(data, policy, stats.rx);
     Frame frame;
-    while (parser.next(frame))
+    while (parser.next(frame)) {
         router.handle_frame(from, frame, now);
+        stats.last_rx = now;
+    }
 }
 
 }  // namespace

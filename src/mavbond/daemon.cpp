@@ -323,10 +323,14 @@ std::string Daemon::status_document() const {
         const Endpoint& e = *endpoints_[i];
         out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
                "\",\"bond\":\"" + e.config().bond + "\"";
-        for_each_counter(e.total_stats(), [&out](const char* name, uint64_t value) {
+        EndpointStats st = e.total_stats();
+        for_each_counter(st, [&out](const char* name, uint64_t value) {
             out += std::string(",\"") + name + "\":" + std::to_string(value);
         });
-        out += "}";
+        // Milliseconds since a frame last came in; -1: never.
+        auto ago = std::chrono::duration_cast<milliseconds>(now - st.last_rx).count();
+        out += ",\"last_rx_ms_ago\":" +
+               std::to_string(st.last_rx == TimePoint{} ? -1 : static_cast<long long>(ago)) + "}";
     }
     out += "],\"bonds\":[";
     for (size_t i = 0; i < router_.bonds().size(); i++) {

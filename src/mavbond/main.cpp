@@ -1,6 +1,7 @@
 // mavbond: the daemon's command line. The gateway itself is Daemon (daemon.h).
 #include <getopt.h>
 
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <string>
@@ -9,6 +10,7 @@
 #include "core/event_loop.h"
 #include "core/log.h"
 #include "mavbond/daemon.h"
+#include "mavbond/import_mavlink_router.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -19,17 +21,22 @@ struct Options {
     std::string log_level;
     std::string plugin_dir;
     bool check_config = false;
+    std::string import_path;  // --import-mavlink-router
 };
 
 void print_usage(FILE* out) {
     fprintf(out,
             "Usage: mavbond [-c FILE] [--check-config] [--log-level LEVEL] [--plugin-dir DIR]\n"
             "               [--version] [--help]\n"
+            "       mavbond --import-mavlink-router FILE\n"
             "MAVLink gateway that bonds redundant telemetry links into one.\n\n"
             "  -c, --config FILE     configuration file (default %s)\n"
             "      --check-config    validate the configuration and exit (78 when invalid)\n"
             "  -l, --log-level LEVEL error, warning, notice, info, debug or trace\n"
             "      --plugin-dir DIR  where filter plugins are loaded from\n"
+            "      --import-mavlink-router FILE\n"
+            "                        print mavlink-router's config FILE as mavbond YAML (65 when\n"
+            "                        FILE is malformed)\n"
             "  -V, --version         print the version and exit\n"
             "  -h, --help            print this help and exit\n\n"
             "Signals: SIGINT/SIGTERM stop, SIGHUP reloads the configuration, SIGUSR1 logs every\n"
@@ -39,12 +46,13 @@ void print_usage(FILE* out) {
 
 /// Returns an exit code when the command line says to stop now, or -1 to go on.
 int parse_args(int argc, char** argv, Options& opts) {
-    enum { kCheckConfig = 1000, kPluginDir };
+    enum { kCheckConfig = 1000, kPluginDir, kImport };
     static const option long_opts[] = {
         {"config", required_argument, nullptr, 'c'},
         {"check-config", no_argument, nullptr, kCheckConfig},
         {"log-level", required_argument, nullptr, 'l'},
         {"plugin-dir", required_argument, nullptr, kPluginDir},
+        {"import-mavlink-router", required_argument, nullptr, kImport},
         {"version", no_argument, nullptr, 'V'},
         {"help", no_argument, nullptr, 'h'},
         {nullptr, 0, nullptr, 0},
@@ -56,6 +64,7 @@ int parse_args(int argc, char** argv, Options& opts) {
         case 'l': opts.log_level = optarg; break;
         case kCheckConfig: opts.check_config = true; break;
         case kPluginDir: opts.plugin_dir = optarg; break;
+        case kImport: opts.import_path = optarg; break;
         case 'V': printf("mavbond %s\n", MAVBOND_VERSION); return 0;
         case 'h': print_usage(stdout); return 0;
         default: print_usage(stderr); return 64;  // EX_USAGE
@@ -67,6 +76,30 @@ int parse_args(int argc, char** argv, Options& opts) {
         return 64;
     }
     return -1;
+}
+
+/// --import-mavlink-router: the YAML on stdout, what was not translated on stderr.
+int import_config(const std::string& path) {
+    FILE* f = fopen(path.c_str(), "rb");
+    if (!f) {
+        fprintf(stderr, "mavbond: %s: cannot open: %s\n", path.c_str(), strerror(errno));
+        return 66;  // EX_NOINPUT
+    }
+    std::string text;
+    char buf[8192];
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+        text.append(buf, n);
+    fclose(f);
+    auto imported = import_mavlink_router(text, path);
+    if (!imported) {
+        fprintf(stderr, "%s\n", imported.error().message.c_str());
+        return kExitDataError;
+    }
+    for (const auto& w : imported->warnings)
+        fprintf(stderr, "mavbond: warning: %s\n", w.c_str());
+    fputs(imported->yaml.c_str(), stdout);
+    return 0;
 }
 
 int run_daemon(const Options& opts) {
@@ -104,6 +137,8 @@ int main(int argc, char** argv) {
     if (code >= 0)
         return code;
     try {
+        if (!opts.import_path.empty())
+            return mavbond::import_config(opts.import_path);
         return mavbond::run_daemon(opts);
     } catch (const std::exception& e) {
         // Nothing on the data path throws; this is the last line of defence (e.g. bad_alloc).

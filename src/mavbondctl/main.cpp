@@ -8,9 +8,13 @@
 #include <boost/property_tree/ptree.hpp>
 #include <cerrno>
 #include <cstdio>
+#include <chrono>
 #include <cstring>
+#include <ctime>
+#include <map>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "mavbond_build_config.h"
 
@@ -22,7 +26,11 @@ constexpr const char* kDefaultSocket = "/run/mavbond/status.sock";
 int usage(FILE* out, int code) {
     fprintf(out,
             "Usage: mavbondctl [-s SOCKET] status [--json]\n"
-            "Prints the status of a running mavbond: endpoints, bonds, links and filters.\n\n"
+            "       mavbondctl [-s SOCKET] watch [--interval S] [--count N]\n"
+            "Prints the status of a running mavbond: endpoints, bonds, links and filters.\n"
+            "watch: one line per link (bond, loss, frames/s received, last frame received,\n"
+            "* for a bond's active link), refreshed every S seconds (default 1), N times\n"
+            "(default: until interrupted); redrawn in place on a terminal, else one block each.\n\n"
             "  -s, --socket PATH  the daemon's status_socket (default %s)\n"
             "      --json         print the daemon's JSON document as it is (for scripts)\n"
             "  -V, --version      print the version\n",
@@ -119,13 +127,130 @@ void print_table(const pt::ptree& doc) {
     }
 }
 
+/// The document as a tree; false (with a message) when it is not JSON.
+bool parse_doc(const std::string& doc, pt::ptree& tree) {
+    try {
+        std::istringstream in(doc);
+        pt::read_json(in, tree);
+        return true;
+    } catch (const pt::ptree_error& e) {
+        fprintf(stderr, "mavbondctl: the daemon's status is not valid JSON: %s\n", e.what());
+        return false;
+    }
+}
+
+/// Loss of an endpoint from the stats filter's links: its own entry, or its peers' and
+/// connections' ("name@address") together. Negative when no stats filter covers it.
+double link_loss_pct(const pt::ptree& doc, const std::string& name) {
+    double lost = 0, frames = 0;
+    bool found = false;
+    // get_child_optional: get_child's default would be a temporary gone before the loop body.
+    const auto filters = doc.get_child_optional("filters");
+    for (const auto& [_, f] : filters ? *filters : pt::ptree()) {
+        const auto links = f.get_child_optional("status.links");
+        if (!links)
+            continue;
+        for (const auto& [__, l] : *links) {
+            std::string n = l.get("name", "");
+            if (n == name) {
+                return l.get("loss_pct", 0.0);
+            }
+            if (n.rfind(name + "@", 0) == 0) {
+                found = true;
+                lost += l.get("lost", 0.0);
+                frames += l.get("frames", 0.0);
+            }
+        }
+    }
+    if (!found)
+        return -1;
+    return lost + frames > 0 ? 100.0 * lost / (lost + frames) : 0.0;
+}
+
+std::string fmt_ago(long long ms) {
+    if (ms < 0)
+        return "never";
+    char b[32];
+    if (ms < 60'000)
+        snprintf(b, sizeof b, "%.1fs", static_cast<double>(ms) / 1000);
+    else
+        snprintf(b, sizeof b, "%lldm%02llds", ms / 60'000, ms / 1000 % 60);
+    return b;
+}
+
+/// One refresh of `watch`. `prev_rx` holds each endpoint's rx_frames of the refresh before
+/// (`dt` seconds ago); the first refresh has no rate yet.
+void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& prev_rx,
+                       double dt) {
+    std::map<std::string, std::string> active;  // bond -> its active link
+    if (const auto bonds = doc.get_child_optional("bonds")) {
+        for (const auto& [_, b] : *bonds)
+            active[b.get("name", "")] = b.get("active", "");
+    }
+    time_t t = time(nullptr);
+    char clock[16];
+    strftime(clock, sizeof clock, "%H:%M:%S", localtime(&t));
+    printf("mavbond %s, up %s s, %s\n", doc.get("version", "?").c_str(),
+           doc.get("uptime_s", "?").c_str(), clock);
+    printf("  %-24s %-10s %8s %10s %10s\n", "LINK", "BOND", "LOSS", "RX/S", "LAST RX");
+    std::map<std::string, uint64_t> now_rx;
+    const auto endpoints = doc.get_child_optional("endpoints");
+    for (const auto& [_, e] : endpoints ? *endpoints : pt::ptree()) {
+        std::string name = e.get("name", "");
+        std::string bond = e.get("bond", "");
+        auto rx = e.get<uint64_t>("rx_frames", 0);
+        now_rx[name] = rx;
+        char rate[32] = "-";
+        if (auto it = prev_rx.find(name); it != prev_rx.end() && dt > 0)
+            snprintf(rate, sizeof rate, "%.1f", static_cast<double>(rx - it->second) / dt);
+        double loss = link_loss_pct(doc, name);
+        // The active link is the endpoint itself or one of its peers ("name@address").
+        const std::string& act = active[bond];
+        char marker = !bond.empty() && (act == name || act.rfind(name + "@", 0) == 0) ? '*' : ' ';
+        printf("%c %-24s %-10s %8s %10s %10s\n", marker, name.c_str(), bond.empty() ? "-" : bond.c_str(),
+               loss < 0 ? "-" : fmt_pct(loss).c_str(), rate,
+               fmt_ago(e.get<long long>("last_rx_ms_ago", -1)).c_str());
+    }
+    prev_rx = std::move(now_rx);
+}
+
+int watch(const std::string& socket_path, double interval, long count) {
+    bool tty = isatty(STDOUT_FILENO) != 0;
+    std::map<std::string, uint64_t> prev_rx;
+    auto last = std::chrono::steady_clock::now();
+    for (long i = 0; count <= 0 || i < count; i++) {
+        if (i > 0)
+            std::this_thread::sleep_for(std::chrono::duration<double>(interval));
+        std::string doc = fetch(socket_path);
+        if (doc.empty())
+            return 69;  // EX_UNAVAILABLE: the daemon went away
+        pt::ptree tree;
+        if (!parse_doc(doc, tree))
+            return 65;
+        auto now = std::chrono::steady_clock::now();
+        double dt = std::chrono::duration<double>(now - last).count();
+        last = now;
+        if (tty)
+            fputs("\033[H\033[2J", stdout);  // home and clear: redraw in place
+        else if (i > 0)
+            fputs("\n", stdout);  // a blank line between blocks
+        print_watch_block(tree, prev_rx, dt);
+        fflush(stdout);
+    }
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
     std::string socket_path = kDefaultSocket;
     bool json = false;
+    double interval = 1.0;
+    long count = 0;
     static const option opts[] = {{"socket", required_argument, nullptr, 's'},
                                   {"json", no_argument, nullptr, 'j'},
+                                  {"interval", required_argument, nullptr, 'i'},
+                                  {"count", required_argument, nullptr, 'n'},
                                   {"version", no_argument, nullptr, 'V'},
                                   {"help", no_argument, nullptr, 'h'},
                                   {nullptr, 0, nullptr, 0}};
@@ -134,11 +259,32 @@ int main(int argc, char** argv) {
         switch (c) {
         case 's': socket_path = optarg; break;
         case 'j': json = true; break;
+        case 'i': {
+            char* end = nullptr;
+            interval = strtod(optarg, &end);
+            if (*optarg == '\0' || *end != '\0' || !(interval >= 0.1 && interval <= 3600)) {
+                fprintf(stderr, "mavbondctl: --interval: '%s' is not a number of seconds in "
+                                "0.1..3600\n", optarg);
+                return 64;
+            }
+            break;
+        }
+        case 'n': {
+            char* end = nullptr;
+            count = strtol(optarg, &end, 10);
+            if (*optarg == '\0' || *end != '\0' || count < 1) {
+                fprintf(stderr, "mavbondctl: --count: '%s' is not a positive integer\n", optarg);
+                return 64;
+            }
+            break;
+        }
         case 'V': printf("mavbondctl %s\n", MAVBOND_VERSION); return 0;
         case 'h': return usage(stdout, 0);
         default: return usage(stderr, 64);
         }
     }
+    if (optind < argc && std::strcmp(argv[optind], "watch") == 0 && optind + 1 == argc)
+        return watch(socket_path, interval, count);
     if (optind >= argc || std::strcmp(argv[optind], "status") != 0)
         return usage(stderr, 64);
     std::string doc = fetch(socket_path);
@@ -148,14 +294,9 @@ int main(int argc, char** argv) {
         fputs(doc.c_str(), stdout);
         return 0;
     }
-    try {
-        pt::ptree tree;
-        std::istringstream in(doc);
-        pt::read_json(in, tree);
-        print_table(tree);
-    } catch (const pt::ptree_error& e) {
-        fprintf(stderr, "mavbondctl: the daemon's status is not valid JSON: %s\n", e.what());
+    pt::ptree tree;
+    if (!parse_doc(doc, tree))
         return 65;  // EX_DATAERR
-    }
+    print_table(tree);
     return 0;
 }

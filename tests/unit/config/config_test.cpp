@@ -273,6 +273,27 @@ bonds:
     EXPECT_TRUE(stats.options.empty());
 }
 
+TEST(ConfigParse, Tlog) {
+    auto config = parse(R"(
+endpoints:
+  - name: flightlog
+    type: tlog
+    directory: /var/log/mavbond
+    max_size: 64MiB
+    block_out: [HEARTBEAT]
+  - {name: small, type: tlog, directory: logs, max_size: 1G}
+  - {name: unlimited, type: tlog, directory: logs}
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    const EndpointConfig& log = config->endpoints[0];
+    EXPECT_EQ(EndpointType::Tlog, log.type);
+    EXPECT_EQ("/var/log/mavbond", log.directory);
+    EXPECT_EQ(64u << 20, log.max_size);
+    EXPECT_EQ(std::vector<uint32_t>{0}, log.filter_out.block);
+    EXPECT_EQ(1ull << 30, config->endpoints[1].max_size);
+    EXPECT_EQ(0u, config->endpoints[2].max_size);
+}
+
 TEST(ConfigParse, EmptyOptionalSections) {
     auto config = parse(R"(
 endpoints:
@@ -434,9 +455,9 @@ const BadCase kBadCases[] = {
     {"DuplicateEndpointName", GCS "  - {name: gcs, type: udp, mode: client, address: 1.2.3.4:5}\n",
      "t.yaml:6:12: duplicate endpoint name 'gcs' (first declared at line 2)"},
     {"MissingType", "endpoints:\n  - name: gcs\n    mode: server\n",
-     "t.yaml:2:5: endpoint 'gcs': missing required key 'type' (udp, tcp or uart)"},
+     "t.yaml:2:5: endpoint 'gcs': missing required key 'type' (udp, tcp, uart or tlog)"},
     {"BadType", "endpoints:\n  - name: fc\n    type: serial\n",
-     "t.yaml:3:11: endpoint 'fc': invalid type 'serial' (allowed: udp, tcp, uart)"},
+     "t.yaml:3:11: endpoint 'fc': invalid type 'serial' (allowed: udp, tcp, uart, tlog)"},
     {"MissingMode", "endpoints:\n  - {name: gcs, type: udp, address: 0.0.0.0:14550}\n",
      "t.yaml:2:5: endpoint 'gcs': missing required key 'mode' (server or client)"},
     {"BadMode", "endpoints:\n  - {name: gcs, type: tcp, mode: listen}\n",
@@ -565,6 +586,19 @@ const BadCase kBadCases[] = {
          "bonds:\n  - {name: b, renumber: true}\nfilters:\n  - {plugin: dedup, bonds: [b]}\n",
      "t.yaml:8:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond "
      "(with key: frame the copies already share one numbering)"},
+    // --- tlog
+    {"TlogWithoutDirectory", "endpoints:\n  - {name: log, type: tlog}\n",
+     "t.yaml:2:5: endpoint 'log': missing required key 'directory'"},
+    {"TlogMaxSizeTooSmall", "endpoints:\n  - {name: log, type: tlog, directory: /l, max_size: 1k}\n",
+     "t.yaml:2:54: endpoint 'log': 'max_size': 1k is below the minimum of 4096 bytes"},
+    {"TlogMaxSizeNotSize", "endpoints:\n  - {name: log, type: tlog, directory: /l, max_size: 64MB}\n",
+     "t.yaml:2:54: endpoint 'log': 'max_size': '64MB' is not a size in bytes (e.g. 64MiB, 1GiB)"},
+    {"TlogInBond", "endpoints:\n  - {name: log, type: tlog, directory: /l, bond: b}\n",
+     "t.yaml:2:44: endpoint 'log': key 'bond' does not apply to a tlog endpoint"},
+    {"TlogAllowIn", "endpoints:\n  - {name: log, type: tlog, directory: /l, allow_in: [0]}\n",
+     "t.yaml:2:44: endpoint 'log': key 'allow_in' does not apply to a tlog endpoint"},
+    {"DirectoryOnUdp", GCS "    directory: /l\n",
+     "t.yaml:6:5: endpoint 'gcs': key 'directory' does not apply to a udp endpoint"},
 };
 
 TEST(ConfigParse, IdentityLinkEventsAndRenumber) {
