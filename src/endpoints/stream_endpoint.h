@@ -43,6 +43,8 @@ protected:
     ssize_t write_stream(const iovec* iov, size_t count) override;
     void on_backlog(bool backlog) override;
     void on_write_error(int err) override;
+    bool wait_writable(TimePoint deadline) override;
+    void abort_mid_frame() override;
 
     EventLoop& loop_;
     Router& router_;

@@ -248,6 +248,12 @@ int run_daemon(const Options& opts) {
     // From here endpoints go away because the daemon stops, not because links fail: the
     // filters must not take it for an outage (a link switch logged at every shutdown).
     router.set_filter(nullptr);
+    // What is still queued goes out if the peers take it now, a frame half written on a
+    // stream is completed (a peer never sees half a frame), the rest is counted as dropped:
+    // the final counters account for every frame. Bounded: a stalled peer cannot hold the stop.
+    TimePoint finish_by = Clock::now() + milliseconds(500);
+    for (const auto& e : *endpoints)
+        e->finish(finish_by);
     dump_counters();
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
