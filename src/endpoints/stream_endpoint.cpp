@@ -51,8 +51,23 @@ void StreamEndpoint::on_backlog(bool backlog) {
 }
 
 void StreamEndpoint::on_write_error(int err) {
-    detach();
-    on_disconnect("write failed: " + errno_text(err));
+    // The peer is gone, but what it sent before going may still wait unread (a TCP client
+    // that sent a frame and closed): read it, then close. After this round, not here: the
+    // router may be in the middle of a batch.
+    if (write_failed_)
+        return;
+    write_failed_ = true;
+    clear_tx();
+    loop_.defer([this, err] {
+        write_failed_ = false;
+        if (!fd_)
+            return;  // the read path saw the end meanwhile and closed
+        read_frames();
+        if (fd_) {
+            detach();
+            on_disconnect("write failed: " + errno_text(err));
+        }
+    });
 }
 
 bool StreamEndpoint::wait_writable(TimePoint deadline) {

@@ -29,7 +29,7 @@ public:
     StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, Router& router,
                    UnknownIdPolicy policy);
     ~StreamEndpoint() override;
-    bool ready() const override { return fd_.valid(); }
+    bool ready() const override { return fd_.valid() && !write_failed_; }
 
 protected:
     /// Starts reading and writing on a connected/opened fd.
@@ -56,6 +56,7 @@ private:
     UniqueFd fd_;
     EventLoop::Watch watch_;
     StreamParser parser_;
+    bool write_failed_ = false;  // closing after a write error, once what is unread is read
 };
 
 }  // namespace mavbond

