@@ -80,7 +80,7 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
             // An option the plugin refused: the message starts where that option's value is
             // (file:line:column), not at the filter entry.
             if (inst->config->option_refused() && err[0])
-                return make_error(err);
+                return make_error(std::string(err) + " (" + plugin->path() + ": create failed)");
             return make_error(at + plugin->path() + ": create failed: " + (err[0] ? err : "no reason given"));
         }
         log_info("[filter:%s] loaded from %s", inst->host.name.c_str(), plugin->path().c_str());
