@@ -97,8 +97,7 @@ def send_lockstep_datagrams(sock, addr, datagrams: List[bytes], sink, frames_eac
     `sink` (which gets every frame through the daemon, one per datagram) has them all."""
     got: List[bytes] = []
     for i in range(0, len(datagrams), burst):
-        want = sum(len(split_stream(d)) for d in datagrams[i:i + burst]) if frames_each == 0 \
-            else frames_each * len(datagrams[i:i + burst])
+        want = frames_each * len(datagrams[i:i + burst])
         for d in datagrams[i:i + burst]:
             sock.sendto(d, addr)
         for dg in recv_datagrams(sink, want, timeout=timeout):

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from helpers import (HOST, FrameMaker, drain, free_port, recv_datagrams, split_stream, uart,
+from helpers import (HOST, FrameMaker, free_port, recv_datagrams, split_stream, uart,
                      udp_client, udp_server, udp_socket)
 
 
@@ -72,7 +72,8 @@ def test_uart_pty_lost_and_back(start_daemon, pty_pair, tmp_path):
 
     def both_get(frames):
         for sock in (gcs, veh):
-            got = [f for dg in recv_datagrams(sock, len(frames), timeout=5) for f in split_stream(dg)]
+            got = [f for dg in recv_datagrams(sock, len(frames), timeout=5)
+                   for f in split_stream(dg)]
             assert got == frames
 
     try:
@@ -80,7 +81,8 @@ def test_uart_pty_lost_and_back(start_daemon, pty_pair, tmp_path):
         gcs.sendto(hello, (HOST, gcs_port))
         data, daemon_ap = veh.recvfrom(65536)
         assert split_stream(data) == [hello]
-        assert split_stream(pty.read_for(timeout=3, until=lambda b: len(b) >= len(hello))) == [hello]
+        out = pty.read_for(timeout=3, until=lambda b: len(b) >= len(hello))
+        assert split_stream(out) == [hello]
         before = um.telemetry(200)
         half = um.sys_status()[:15]
         pty.write_all(b"".join(before) + half)  # the device goes away in the middle of a frame
