@@ -458,7 +458,11 @@ def test_sigterm_under_load(start_daemon):
     th_src.start()
     th_rd.start()
     try:
-        time.sleep(2.0)
+        time.sleep(1.0)
+        deadline = time.monotonic() + 20
+        while d.stats()["t"]["tx_dropped"] == 0:  # under load: the reader's queue overflows
+            assert time.monotonic() < deadline, "the reader never fell behind"
+            time.sleep(0.2)
         t0 = time.monotonic()
         d.proc.send_signal(signal.SIGTERM)
         code = d.proc.wait(timeout=10)
@@ -475,7 +479,7 @@ def test_sigterm_under_load(start_daemon):
     log = d.log()
     final = d.final_stats()
     frames, rest = whole_frames(bytes(received))
-    print(f"\nSIGTERM after 2s of load: exit {code} in {took * 1000:.0f} ms; about "
+    print(f"\nSIGTERM under load: exit {code} in {took * 1000:.0f} ms; about "
           f"{sent_frames[0]} frames sent; the TCP reader got {len(frames)} whole frames and "
           f"{rest} stray bytes; final counters: in rx_frames={final['in']['rx_frames']}, t "
           f"tx_frames={final['t']['tx_frames']} tx_dropped={final['t']['tx_dropped']}, out "
