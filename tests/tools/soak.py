@@ -19,7 +19,7 @@ hold, 1 otherwise (the curve is printed either way).
 
 The sender builds frames without pymavlink (CRC-16/MCRF4XX is affine in the message bytes: a
 frame that differs from a template in five bytes gets its CRC from five table lookups) and
-sends --batch frames per datagram when one per datagram cannot keep up (see --help).
+sends --batch frames per datagram when one per datagram cannot keep up.
 """
 from __future__ import annotations
 
