@@ -121,6 +121,15 @@ void Endpoint::flush() {
     on_backlog(tx_.has_backlog());
 }
 
+void Endpoint::finish(TimePoint deadline) {
+    flush();
+    while (tx_.mid_frame() && wait_writable(deadline))
+        flush();
+    if (tx_.mid_frame())
+        abort_mid_frame();
+    clear_tx();
+}
+
 void Endpoint::clear_tx() {
     stats_.tx_dropped += tx_.clear();
     on_backlog(false);

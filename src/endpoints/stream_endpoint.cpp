@@ -1,5 +1,7 @@
 #include "endpoints/stream_endpoint.h"
 
+#include <poll.h>
+#include <sys/socket.h>
 #include <sys/uio.h>
 
 #include <cerrno>
@@ -49,8 +51,43 @@ void StreamEndpoint::on_backlog(bool backlog) {
 }
 
 void StreamEndpoint::on_write_error(int err) {
-    detach();
-    on_disconnect("write failed: " + errno_text(err));
+    // The peer is gone, but what it sent before going may still wait unread (a TCP client
+    // that sent a frame and closed): read it, then close. After this round, not here: the
+    // router may be in the middle of a batch.
+    if (write_failed_)
+        return;
+    write_failed_ = true;
+    clear_tx();
+    loop_.defer([this, err] {
+        write_failed_ = false;
+        if (!fd_)
+            return;  // the read path saw the end meanwhile and closed
+        read_frames();
+        if (fd_) {
+            detach();
+            on_disconnect("write failed: " + errno_text(err));
+        }
+    });
+}
+
+bool StreamEndpoint::wait_writable(TimePoint deadline) {
+    auto left = std::chrono::duration_cast<milliseconds>(deadline - Clock::now()).count();
+    if (!fd_ || left <= 0)
+        return false;
+    // At most 2 ms: TCP signals POLLOUT only once a third of its buffer is free, but the rest
+    // of one frame fits as soon as the peer reads a little.
+    pollfd p{fd_.get(), POLLOUT, 0};
+    poll(&p, 1, static_cast<int>(std::min<int64_t>(left, 2)));
+    return true;
+}
+
+void StreamEndpoint::abort_mid_frame() {
+    // The peer did not take the rest of the frame in time. A TCP peer gets a reset (an error)
+    // rather than a clean end of stream after half a frame; a UART has no such signal.
+    linger reset{1, 0};
+    if (fd_ && setsockopt(fd_.get(), SOL_SOCKET, SO_LINGER, &reset, sizeof reset) == 0)
+        log_warning("[%s] the peer took only part of a frame before the stop: connection reset",
+                    name().c_str());
 }
 
 void StreamEndpoint::on_events(uint32_t events) {

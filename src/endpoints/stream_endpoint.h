@@ -29,7 +29,7 @@ public:
     StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, Router& router,
                    UnknownIdPolicy policy, const Endpoint* parent = nullptr);
     ~StreamEndpoint() override;
-    bool ready() const override { return fd_.valid(); }
+    bool ready() const override { return fd_.valid() && !write_failed_; }
 
 protected:
     /// Starts reading and writing on a connected/opened fd.
@@ -43,6 +43,8 @@ protected:
     ssize_t write_stream(const iovec* iov, size_t count) override;
     void on_backlog(bool backlog) override;
     void on_write_error(int err) override;
+    bool wait_writable(TimePoint deadline) override;
+    void abort_mid_frame() override;
 
     EventLoop& loop_;
     Router& router_;
@@ -54,6 +56,7 @@ private:
     UniqueFd fd_;
     EventLoop::Watch watch_;
     StreamParser parser_;
+    bool write_failed_ = false;  // closing after a write error, once what is unread is read
 };
 
 }  // namespace mavbond

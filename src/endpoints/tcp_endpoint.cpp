@@ -69,6 +69,11 @@ EndpointStats TcpServer::total_stats() const {
     return total;
 }
 
+void TcpServer::finish(TimePoint deadline) {
+    for (auto& c : clients_)
+        c->finish(deadline);
+}
+
 void TcpServer::on_accept() {
     for (;;) {
         sockaddr_in peer{};

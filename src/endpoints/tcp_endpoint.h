@@ -35,6 +35,7 @@ public:
     ~TcpServer() override;
     const char* kind() const override { return "tcp-server"; }
     EndpointStats total_stats() const override;
+    void finish(TimePoint deadline) override;
 
 private:
     friend class TcpConnection;

@@ -25,6 +25,8 @@ public:
     bool has_lent() const { return !lent_.empty(); }
     bool has_backlog() const { return backlog_frames_ != 0; }
     bool empty() const { return !has_lent() && !has_backlog(); }
+    /// Stream mode: the head frame is partly written (the line stops mid-frame for now).
+    bool mid_frame() const { return head_written_ != 0; }
 
     struct WriteResult {
         uint64_t frames_sent = 0;

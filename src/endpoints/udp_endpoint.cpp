@@ -119,6 +119,11 @@ EndpointStats UdpServer::total_stats() const {
     return total;
 }
 
+void UdpServer::finish(TimePoint deadline) {
+    for (auto& peer : peers_)
+        peer->finish(deadline);
+}
+
 UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
     for (auto& peer : peers_) {
         if (same_address(peer->address(), addr))
@@ -231,7 +236,11 @@ void UdpClient::on_events(uint32_t events) {
         return;
     int n = batch_.receive(fd_.get());
     if (n < 0) {
-        // ECONNREFUSED: the peer's port is closed (ICMP port unreachable). Keep going.
+        // ECONNREFUSED: the peer's port is closed (ICMP port unreachable). Keep going. The
+        // kernel reports the ICMP on whichever call comes first, usually this read rather than
+        // the next send: it is still a datagram we sent that was lost, so a transmit error.
+        if (n == -ECONNREFUSED)
+            stats_.tx_errors++;
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }

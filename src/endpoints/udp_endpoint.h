@@ -64,6 +64,7 @@ public:
     ~UdpServer() override;
     const char* kind() const override { return "udp-server"; }
     EndpointStats total_stats() const override;
+    void finish(TimePoint deadline) override;
     int fd() const { return fd_.get(); }
     /// Watches for EPOLLOUT while some peer has a backlog.
     void update_write_interest();

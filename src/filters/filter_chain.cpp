@@ -80,8 +80,13 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
         inst->host.name = same ? entry.plugin + "#" + std::to_string(same + 1) : entry.plugin;
         char err[512] = "";
         const mavbond_plugin_descriptor& d = plugin->descriptor();
-        if (d.create(host_api(), &inst->host, &inst->view, &inst->self, err, sizeof err) != 0)
+        if (d.create(host_api(), &inst->host, &inst->view, &inst->self, err, sizeof err) != 0) {
+            // An option the plugin refused: the message starts where that option's value is
+            // (file:line:column), not at the filter entry.
+            if (inst->config->option_refused() && err[0])
+                return make_error(std::string(err) + " (" + plugin->path() + ": create failed)");
             return make_error(at + plugin->path() + ": create failed: " + (err[0] ? err : "no reason given"));
+        }
         log_info("[filter:%s] loaded from %s", inst->host.name.c_str(), plugin->path().c_str());
         chain->instances_.push_back(std::move(inst));
     }

@@ -217,6 +217,7 @@ struct HostApiImpl {
         if (!err || err_len == 0)
             return;
         std::string text = c->config->error_at(key ? key : "?", message ? message : "");
+        c->config->option_refused_ = true;
         snprintf(err, err_len, "%s", text.c_str());
     }
     static void scope(const mavbond_config* c, const char* const** bonds, size_t* bond_count,

@@ -55,12 +55,15 @@ public:
     const FilterConfig& entry() const { return entry_; }
     /// "file:line:column: filter 'NAME': option 'KEY': message" (the entry's mark if absent).
     std::string error_at(const char* key, const std::string& message) const;
+    /// Whether the plugin refused an option through cfg_error (its message names the place).
+    bool option_refused() const { return option_refused_; }
 
 private:
     explicit PluginConfig(const FilterConfig& entry) : entry_(entry) {}
     const FilterConfig& entry_;
     std::map<std::string, OptionValue, std::less<>> values_;
     std::vector<const char*> bond_ptrs_, endpoint_ptrs_;
+    mutable bool option_refused_ = false;  // set through the const view plugins get
     friend struct HostApiImpl;
 };
 

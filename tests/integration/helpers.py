@@ -230,7 +230,8 @@ def parse_stats_line(line: str) -> Optional[dict]:
 
 
 def parse_stats(text: str) -> List[dict]:
-    return [d for d in (parse_stats_line(l) for l in text.splitlines()) if d]
+    complete = text[:text.rfind("\n") + 1]  # a line the daemon is still writing is not read
+    return [d for d in (parse_stats_line(l) for l in complete.splitlines()) if d]
 
 
 class Daemon:

@@ -4,6 +4,7 @@
 #include <sys/socket.h>
 #include <sys/uio.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <numeric>
 #include <set>
@@ -112,6 +113,43 @@ TEST(TxQueue, StreamPartialWritesNeverSplitFramesAndKeepOrder) {
     EXPECT_EQ(received.size(), std::set<uint16_t>(received.begin(), received.end()).size());
     // Drop-oldest: the newest frame always makes it.
     EXPECT_EQ(frames.size() - 1, received.back());
+}
+
+// What the daemon's stop relies on: mid_frame() says when the line stops inside a frame, and
+// writing on from there completes that frame first.
+TEST(TxQueue, MidFrameUntilTheCutFrameIsComplete) {
+    struct Budget {
+        size_t bytes;  // what the "kernel" takes on the next write
+        std::vector<uint8_t> out;
+    } budget{50, {}};
+    auto writer = [](void* ctx, const iovec* iov, size_t count) -> ssize_t {
+        auto& b = *static_cast<Budget*>(ctx);
+        size_t taken = 0;
+        for (size_t i = 0; i < count && taken < b.bytes; i++) {
+            size_t n = std::min(iov[i].iov_len, b.bytes - taken);
+            auto* p = static_cast<const uint8_t*>(iov[i].iov_base);
+            b.out.insert(b.out.end(), p, p + n);
+            taken += n;
+        }
+        b.bytes = 0;
+        return static_cast<ssize_t>(taken);
+    };
+    TxQueue q(TxQueue::Mode::Stream, 4096);
+    auto f0 = numbered_frame(0, 40), f1 = numbered_frame(1, 40);
+    q.lend(f0);
+    q.lend(f1);
+    EXPECT_FALSE(q.mid_frame());
+    auto r = q.write_stream(writer, &budget);  // 50 bytes: frame 0 and a quarter of frame 1
+    EXPECT_EQ(1u, r.frames_sent);
+    EXPECT_TRUE(q.mid_frame());
+    budget.bytes = 30;  // the rest of frame 1 exactly
+    r = q.write_stream(writer, &budget);
+    EXPECT_EQ(1u, r.frames_sent);
+    EXPECT_FALSE(q.mid_frame());
+    EXPECT_TRUE(q.empty());
+    std::vector<uint8_t> want(f0);
+    want.insert(want.end(), f1.begin(), f1.end());
+    EXPECT_EQ(want, budget.out);
 }
 
 TEST(TxQueue, DatagramBacklogKeepsOrderAfterEagain) {
