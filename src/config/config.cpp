@@ -809,7 +809,8 @@ void Parser::cross_check() {
         }
         if (!found)
             fail(mark, "bond '" + bond + "': 'renumber' needs a dedup filter with 'key: content' "
-                       "on this bond (with key: frame the copies already share one numbering)");
+                       "on this bond, enabled and scoped to it by 'bonds:' or unscoped (with "
+                       "key: frame the copies already share one numbering)");
     }
     for (const auto& ref : scope_refs_) {
         bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0

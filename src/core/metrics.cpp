@@ -24,6 +24,9 @@ const std::map<std::string, const char*>& counter_help() {
         {"tx_filtered", "Frames not sent because of allow_out/block_out."},
         {"tx_dropped", "Frames dropped on transmit: queue full, link down or a write error."},
         {"tx_errors", "Hard write errors (ICMP unreachable, EIO, ...)."},
+        {"sig_unsigned", "Unsigned frames on a signing endpoint (dropped when signing is required)."},
+        {"sig_bad", "Frames dropped because their signature does not verify."},
+        {"sig_replay", "Signed frames dropped as replayed or too old."},
     };
     return help;
 }
@@ -42,11 +45,17 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
     for (const auto& e : endpoints) {
         MetricLabels labels{{"endpoint", e->name()}, {"kind", e->kind()},
                             {"bond", e->config().bond}};
-        for_each_counter(e->total_stats(), [&](const char* name, uint64_t value) {
+        EndpointStats stats = e->total_stats();
+        for_each_counter(stats, [&](const char* name, uint64_t value) {
             auto help = counter_help().find(name);
             set.counter(std::string("mavbond_endpoint_") + name,
                         help == counter_help().end() ? name : help->second, value, labels);
         });
+        // "Last heard" for alerts on a silent link; absent until the first frame.
+        if (stats.last_rx != TimePoint{})
+            set.gauge("mavbond_endpoint_last_rx_age_seconds",
+                      "Seconds since a frame last came in on the endpoint.",
+                      std::chrono::duration<double>(now - stats.last_rx).count(), labels);
     }
     set.counter("mavbond_router_frames_routed", "Frames the router handled (after ingress filters).",
                 router.frames_routed());

@@ -6,10 +6,16 @@ loader knows (src/config/config.cpp) and the options of the three plugins.
 A case is (id, YAML text, words the message must contain). The text marks the fault with »:
 the marker is removed before the file is written, and its place is the line and column the
 message must name. (tests/unit/config checks the loader's messages in-process; this checks
-what an operator sees from the daemon.)"""
+what an operator sees from the daemon.) Every case also has the key files of KEY_FILES next
+to the config, so a `signing:` block can name a valid key and fail on something else. The
+list of keys a case must cover is read from the loader's and the plugins' sources
+(loader_keys(), plugin_options()), so a key merged later without a case fails the meta-test."""
 from __future__ import annotations
 
+import os
+import re
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -32,6 +38,9 @@ def ep(**kw) -> str:
 
 UART = dict(type="uart", mode=None, address=None, device="/dev/ttyNONE")
 TCP_CLIENT = dict(type="tcp", mode="client")
+TLOG = dict(type="tlog", mode=None, address=None, directory="logs")
+# Written next to the config for every case (a relative key_file is read from there).
+KEY_FILES = {"good.key": ("ab" * 32 + "\n", 0o600)}
 BONDED = doc(ep(name="r", bond="v"), ep(name="l", address="127.0.0.1:14551", bond="v"),
              tail="bonds:\n  - {name: v}\n")
 
@@ -71,6 +80,77 @@ CASES = [
     ("endpoints-missing", f"{HERE}log_level: info\n", ["missing required key 'endpoints'"]),
     ("endpoints-empty", f"endpoints: {HERE}[]\n", ["non-empty sequence"]),
     ("endpoints-scalar", f"endpoints: {HERE}udp\n", ["non-empty sequence"]),
+    # --- identity: mavbond's own MAVLink identity ---------------------------------------------
+    ("identity-scalar", doc(UDP, top=f"identity: {HERE}1\n"),
+     ["identity: must be a map of keys, not a scalar"]),
+    ("identity-unknown-key", doc(UDP, top=f"identity:\n  {HERE}system: 1\n"),
+     ["identity: unknown key 'system'"]),
+    ("identity-sysid-zero", doc(UDP, top=f"identity:\n  sysid: {HERE}0\n"),
+     ["identity: 'sysid': '0' is not a MAVLink id (1..255)"]),
+    ("identity-sysid-negative", doc(UDP, top=f"identity: {{sysid: {HERE}-1}}\n"),
+     ["identity: 'sysid': '-1' is not a MAVLink id"]),
+    ("identity-compid-too-big", doc(UDP, top=f"identity:\n  compid: {HERE}256\n"),
+     ["identity: 'compid': '256' is not a MAVLink id (1..255)"]),
+    ("identity-compid-list", doc(UDP, top=f"identity: {{compid: {HERE}[1]}}\n"),
+     ["identity: 'compid' must be a single value, not a sequence"]),
+    ("identity-heartbeat-zero", doc(UDP, top=f"identity:\n  heartbeat: {HERE}0s\n"),
+     ["identity: 'heartbeat': duration must be greater than 0"]),
+    ("identity-heartbeat-no-unit", doc(UDP, top=f"identity:\n  heartbeat: {HERE}1\n"),
+     ["identity: 'heartbeat': duration '1' needs a unit"]),
+    # --- link_events ----------------------------------------------------------------------
+    ("link_events-empty", doc(UDP, top=f"{HERE}link_events:\n"),
+     ["link_events: must be a map of keys, not nothing"]),
+    ("link_events-list", doc(UDP, top=f"link_events: {HERE}[statustext]\n"),
+     ["link_events: must be a map of keys, not a sequence"]),
+    ("link_events-unknown-key", doc(UDP, top=f"link_events:\n  {HERE}lost_after: 1s\n"),
+     ["link_events: unknown key 'lost_after'"]),
+    ("link_events-duplicate-key",
+     doc(UDP, top=f"link_events:\n  statustext: true\n  {HERE}statustext: false\n"),
+     ["link_events: duplicate key 'statustext'"]),
+    ("link_events-statustext-maybe", doc(UDP, top=f"link_events:\n  statustext: {HERE}maybe\n"),
+     ["link_events: 'statustext' must be true or false, not 'maybe'"]),
+    ("link_events-silent_after-zero", doc(UDP, top=f"link_events:\n  silent_after: {HERE}0s\n"),
+     ["link_events: 'silent_after': duration must be greater than 0"]),
+    ("link_events-silent_after-no-unit",
+     doc(UDP, top=f"link_events:\n  silent_after: {HERE}1\n"),
+     ["link_events: 'silent_after': duration '1' needs a unit"]),
+    ("link_events-min_interval-word", doc(UDP, top=f"link_events:\n  min_interval: {HERE}often\n"),
+     ["link_events: 'min_interval': invalid duration 'often'"]),
+    ("link_events-min_interval-negative",
+     doc(UDP, top=f"link_events:\n  min_interval: {HERE}-2s\n"),
+     ["link_events: 'min_interval': invalid duration '-2s'"]),
+    # --- metrics: the Prometheus endpoint ----------------------------------------------------
+    ("metrics-scalar", doc(UDP, top=f"metrics: {HERE}9273\n"),
+     ["'metrics' must be a map of keys (listen, timeout, max_connections), not a scalar"]),
+    ("metrics-listen-missing", doc(UDP, top=f"metrics: {HERE}{{timeout: 1s}}\n"),
+     ["metrics: missing required key 'listen'"]),
+    ("metrics-listen-missing-block", doc(UDP, top=f"metrics:\n  {HERE}timeout: 1s\n"),
+     ["metrics: missing required key 'listen'"]),
+    ("metrics-listen-empty", doc(UDP, top=f"metrics:\n  {HERE}listen:\n"),
+     ["metrics: 'listen' needs a value"]),
+    ("metrics-listen-hostname", doc(UDP, top=f"metrics: {{listen: {HERE}example.com:9273}}\n"),
+     ["metrics: 'listen': host 'example.com' is not an IPv4 address"]),
+    ("metrics-listen-port-zero", doc(UDP, top=f"metrics: {{listen: {HERE}127.0.0.1:0}}\n"),
+     ["metrics: 'listen': port '0' is not in 1..65535"]),
+    ("metrics-listen-port-only-big", doc(UDP, top=f"metrics: {{listen: {HERE}70000}}\n"),
+     ["metrics: 'listen': port '70000' is not in 1..65535"]),
+    ("metrics-listen-word", doc(UDP, top=f"metrics: {{listen: {HERE}http}}\n"),
+     ["metrics: 'listen': port 'http' is not in 1..65535"]),
+    ("metrics-unknown-key", doc(UDP, top=f"metrics: {{listen: 9273, {HERE}port: 9273}}\n"),
+     ["metrics: unknown key 'port'"]),
+    ("metrics-timeout-zero", doc(UDP, top=f"metrics: {{listen: 9273, timeout: {HERE}0s}}\n"),
+     ["metrics: 'timeout': duration must be greater than 0"]),
+    ("metrics-timeout-no-unit", doc(UDP, top=f"metrics: {{listen: 9273, timeout: {HERE}5}}\n"),
+     ["metrics: 'timeout': duration '5' needs a unit"]),
+    ("metrics-max_connections-zero",
+     doc(UDP, top=f"metrics: {{listen: 9273, max_connections: {HERE}0}}\n"),
+     ["metrics: 'max_connections': '0' is not in 1..1024"]),
+    ("metrics-max_connections-too-big",
+     doc(UDP, top=f"metrics: {{listen: 9273, max_connections: {HERE}1025}}\n"),
+     ["metrics: 'max_connections': '1025' is not in 1..1024"]),
+    ("metrics-max_connections-word",
+     doc(UDP, top=f"metrics: {{listen: 9273, max_connections: {HERE}many}}\n"),
+     ["metrics: 'max_connections': 'many' is not in 1..1024"]),
     # --- endpoints: shape and names ----------------------------------------------------------
     ("endpoint-scalar", f"endpoints:\n  - {HERE}udp\n", ["endpoint #1", "map"]),
     ("endpoint-no-name", doc(UDP, f"{HERE}" + ep(name=None)), ["endpoint #2", "'name'"]),
@@ -80,8 +160,10 @@ CASES = [
      ["duplicate endpoint name 'a'"]),
     ("endpoint-unknown-key", doc(UDP[:-1] + f", {HERE}colour: red}}"), ["unknown key 'colour'"]),
     ("endpoint-duplicate-key", doc(UDP[:-1] + f", {HERE}mode: client}}"), ["duplicate key 'mode'"]),
-    ("type-missing", doc(f"{HERE}" + ep(type=None)), ["missing required key 'type'"]),
-    ("type-invalid", doc(ep(type=f"{HERE}serial")), ["invalid type 'serial'", "udp, tcp, uart"]),
+    ("type-missing", doc(f"{HERE}" + ep(type=None)),
+     ["missing required key 'type' (udp, tcp, uart or tlog)"]),
+    ("type-invalid", doc(ep(type=f"{HERE}serial")),
+     ["invalid type 'serial'", "udp, tcp, uart, tlog"]),
     ("mode-missing", doc(f"{HERE}" + ep(mode=None)), ["missing required key 'mode'"]),
     ("mode-invalid", doc(ep(mode=f"{HERE}listen")), ["invalid mode 'listen'"]),
     # --- address ----------------------------------------------------------------------------
@@ -134,6 +216,54 @@ CASES = [
      ["'allow_out': a message must be an id or a name"]),
     ("block_out-scalar", doc(ep(block_out=f"{HERE}HEARTBEAT")), ["'block_out' must be a sequence"]),
     ("block_out-negative", doc(ep(block_out=f"[{HERE}-1]")), ["message id '-1' out of range"]),
+    # --- tlog (a flight log: only what is routed to it) ----------------------------------------
+    ("tlog-directory-missing", doc(f"{HERE}" + ep(**{**TLOG, "directory": None})),
+     ["endpoint 'a': missing required key 'directory'"]),
+    ("tlog-directory-empty", doc(ep(**{**TLOG, "directory": f'{HERE}""'})),
+     ["'directory' must not be empty"]),
+    ("tlog-directory-list", doc(ep(**{**TLOG, "directory": f"{HERE}[a, b]"})),
+     ["'directory' must be a single value, not a sequence"]),
+    ("tlog-max_size-word", doc(ep(**TLOG, max_size=f"{HERE}big")),
+     ["'max_size': 'big' is not a size in bytes"]),
+    ("tlog-max_size-too-small", doc(ep(**TLOG, max_size=f"{HERE}4095")),
+     ["'max_size': 4095 is below the minimum of 4096 bytes"]),
+    ("tlog-max_size-zero", doc(ep(**TLOG, max_size=f"{HERE}0")),
+     ["'max_size': 0 is below the minimum of 4096 bytes"]),
+    ("tlog-mode", doc(ep(**TLOG)[:-1] + f", {HERE}mode: server}}"),
+     ["key 'mode' does not apply to a tlog endpoint"]),
+    ("tlog-allow_in", doc(ep(**TLOG)[:-1] + f", {HERE}allow_in: [HEARTBEAT]}}"),
+     ["key 'allow_in' does not apply to a tlog endpoint"]),
+    ("tlog-block_in", doc(ep(**TLOG)[:-1] + f", {HERE}block_in: [0]}}"),
+     ["key 'block_in' does not apply to a tlog endpoint"]),
+    ("tlog-bond", doc(ep(**TLOG)[:-1] + f", {HERE}bond: v}}"),
+     ["key 'bond' does not apply to a tlog endpoint"]),
+    ("directory-on-udp", doc(UDP[:-1] + f", {HERE}directory: logs}}"),
+     ["key 'directory' does not apply to a udp endpoint"]),
+    ("max_size-on-uart", doc(ep(**UART)[:-1] + f", {HERE}max_size: 1MiB}}"),
+     ["key 'max_size' does not apply to a uart endpoint"]),
+    # --- signing (key-file contents and modes: test_signing.py, BAD_KEYS) -------------------
+    ("signing-scalar", doc(ep(signing=f"{HERE}on")),
+     ["endpoint 'a': 'signing': must be a map (key_file, require), not a scalar"]),
+    ("signing-empty", "endpoints:\n  - name: a\n    type: udp\n    mode: server\n"
+                      f"    address: 127.0.0.1:14550\n    {HERE}signing:\n",
+     ["'signing': must be a map", "not nothing"]),
+    ("signing-key_file-missing", doc(ep(signing=f"{HERE}{{require: false}}")),
+     ["'signing': missing required key 'key_file'"]),
+    ("signing-key_file-empty", doc(ep(signing=f'{{key_file: {HERE}""}}')),
+     ["'signing': 'key_file' must not be empty"]),
+    ("signing-key_file-list", doc(ep(signing=f"{{key_file: {HERE}[good.key]}}")),
+     ["'signing': 'key_file' must be a single value, not a sequence"]),
+    ("signing-key_file-directory", doc(ep(signing=f"{{key_file: {HERE}/}}")),
+     ["'signing': key file /: not a regular file"]),
+    ("signing-require-maybe", doc(ep(signing=f"{{key_file: good.key, require: {HERE}maybe}}")),
+     ["'signing': 'require' must be true or false, not 'maybe'"]),
+    ("signing-unknown-key", doc(ep(signing=f"{{key_file: good.key, {HERE}algorithm: sha256}}")),
+     ["'signing': unknown key 'algorithm'"]),
+    ("signing-duplicate-key",
+     doc(ep(signing=f"{{key_file: good.key, {HERE}key_file: good.key}}")),
+     ["'signing': duplicate key 'key_file'"]),
+    ("signing-on-tlog", doc(ep(**TLOG)[:-1] + f", {HERE}signing: {{key_file: good.key}}}}"),
+     ["key 'signing' does not apply to a tlog endpoint"]),
     # --- bonds ----------------------------------------------------------------------------
     ("bond-empty", doc(ep(bond=f'{HERE}""')), ["'bond' must not be empty"]),
     ("bond-undeclared", doc(ep(bond=f"{HERE}ghost")), ["bond 'ghost' is not declared"]),
@@ -148,6 +278,18 @@ CASES = [
      ["invalid tx 'all'", "broadcast, active"]),
     ("bond-duplicate", BONDED + f"  - {{name: {HERE}v}}\n", ["duplicate bond name 'v'"]),
     ("bond-no-member", BONDED + f"  - {{name: {HERE}w}}\n", ["bond 'w' has no member"]),
+    ("bond-renumber-maybe", BONDED.replace("{name: v}", f"{{name: v, renumber: {HERE}maybe}}"),
+     ["bond 'v': 'renumber' must be true or false, not 'maybe'"]),
+    ("bond-renumber-no-dedup", BONDED.replace("{name: v}", f"{{name: v, renumber: {HERE}true}}"),
+     ["bond 'v': 'renumber' needs a dedup filter with 'key: content' on this bond"]),
+    ("bond-renumber-dedup-key-frame",
+     BONDED.replace("{name: v}", f"{{name: v, renumber: {HERE}true}}")
+     + "filters:\n  - {plugin: dedup, key: frame}\n",
+     ["'renumber' needs a dedup filter with 'key: content'"]),
+    ("bond-renumber-dedup-disabled",
+     BONDED.replace("{name: v}", f"{{name: v, renumber: {HERE}true}}")
+     + "filters:\n  - {plugin: dedup, key: content, enabled: false}\n",
+     ["'renumber' needs a dedup filter with 'key: content'"]),
     # --- filters: the entry ---------------------------------------------------------------
     ("filters-scalar", BONDED + f"filters: {HERE}dedup\n", ["'filters' must be a sequence"]),
     ("filter-scalar", BONDED + f"filters:\n  - {HERE}dedup\n", ["filter #1", "map"]),
@@ -159,7 +301,7 @@ CASES = [
      ["filter 'nosuch'", "cannot load plugin"]),
     ("filter-enabled-maybe", with_filter(f"{{plugin: dedup, enabled: {HERE}maybe}}"),
      ["'enabled' must be true or false"]),
-    ("filter-unknown-bond", with_filter(f"{{plugin: dedup, bonds: [{HERE}w]}}"),
+    ("filter-bonds-unknown", with_filter(f"{{plugin: dedup, bonds: [{HERE}w]}}"),
      ["'bonds': unknown bond 'w'"]),
     ("filter-unknown-endpoint", with_filter(f"{{plugin: stats, endpoints: [r, {HERE}x]}}"),
      ["'endpoints': unknown endpoint 'x'"]),
@@ -222,18 +364,113 @@ def locate(text: str):
     return text.replace(HERE, ""), line, column
 
 
+REPO = Path(__file__).resolve().parents[2]
+LOADER = REPO / "src" / "config" / "config.cpp"
+
+# What the derivations below must find at least: the keys known when this was written. A
+# loader or plugin rewritten so that the regexes miss its keys fails here, not silently.
+KNOWN_KEYS = {
+    "top": {"log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
+            "status_socket", "endpoints", "bonds", "filters", "identity", "link_events",
+            "metrics"},
+    "endpoint": {"name", "type", "mode", "address", "peer_timeout", "reconnect_min",
+                 "reconnect_max", "device", "baud", "flow_control", "tx_queue", "allow_in",
+                 "block_in", "allow_out", "block_out", "bond", "signing", "directory",
+                 "max_size"},
+    "signing": {"key_file", "require"},
+    "bond": {"name", "tx", "renumber"},
+    "filter": {"plugin", "enabled", "bonds", "endpoints"},
+    "metrics": {"listen", "timeout", "max_connections"},
+    "identity": {"sysid", "compid", "heartbeat"},
+    "link_events": {"statustext", "silent_after", "min_interval"},
+}
+KNOWN_OPTIONS = {
+    "dedup": {"window", "hash", "key", "drop_stale", "max_entries"},
+    "linkswitch": {"switch_after", "loss_window", "max_loss", "priority", "hold_down",
+                   "failback_after"},
+    "stats": {"interval", "csv", "log"},
+}
+# Errors of a key tested in another file, as (file, test function): counted as covered when
+# that test exists. (This file has key_file cases too; those are the contents and modes.)
+ELSEWHERE = {
+    ("signing", "key_file"): ("test_signing.py", "test_bad_key_file_is_a_config_error"),
+}
+
+
+def loader_keys(source: str) -> dict[str, set[str]]:
+    """{section: keys} from the loader's source: each `Parser::parse*` function is a section
+    (parse -> top, parse_endpoint -> endpoint, ...), and its keys are the strings of its
+    `std::set<std::string_view>` literals, `view.find("k")`, `required_scalar(view, m, "k"`
+    and `e.name == "k"`. A new `parse_x` function with keys is a new section."""
+    parts = re.split(r"^\S[^\n]*?\bParser::(\w+)\(", source, flags=re.M)
+    sections: dict[str, set[str]] = {}
+    for func, body in zip(parts[1::2], parts[2::2]):
+        found = set()
+        for lit in re.findall(r"std::set<std::string_view>\s+\w+\s*=\s*\{([^}]*)\}", body):
+            found |= set(re.findall(r'"([^"]*)"', lit))
+        found |= set(re.findall(r'view\.find\("([^"]*)"\)', body))
+        found |= set(re.findall(r'required_scalar\(view,\s*[\w.]+,\s*"([^"]*)"', body))
+        found |= set(re.findall(r'\be\.name == "([^"]*)"', body))
+        if found:
+            section = "top" if func == "parse" else func.removeprefix("parse_")
+            sections.setdefault(section, set()).update(found)
+    assert not re.search(r'view\.find\("', parts[0]), "keys read outside Parser:: functions"
+    return sections
+
+
+def plugin_options(root: Path) -> dict[str, set[str]]:
+    """{plugin: option keys} from each plugin's `kOptions[]` table."""
+    options = {}
+    for src in sorted(root.glob("plugins/*/*.cpp")):
+        if src.stem.endswith("_test"):
+            continue
+        m = re.search(r"kOptions\[\]\s*=\s*\{(.*?)\n\};", src.read_text(), re.S)
+        if m:
+            options.setdefault(src.parent.name, set()).update(
+                re.findall(r'^\s*\{"(\w+)"', m.group(1), re.M))
+    return options
+
+
 def test_cases_cover_every_key():
-    """Every key the loader takes (top level, endpoint, bond, filter entry) has a case."""
-    keys = ["log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
-            "status_socket", "endpoints", "bonds", "filters", "name", "type", "mode", "address",
-            "peer_timeout", "reconnect_min", "reconnect_max", "device", "baud", "flow_control",
-            "tx_queue", "allow_in", "block_in", "allow_out", "block_out", "bond", "tx", "plugin",
-            "enabled"]
-    ids = " ".join(c[0] for c in CASES)
-    missing = [k for k in keys if k not in ids]
-    print(f"\n{len(CASES)} cases, each run with --check-config and as a normal start")
+    """Every key the loader takes (per section: top level, endpoint, signing, bond, filter
+    entry, metrics, identity, link_events) and every option of the three plugins has a case.
+    A case id is words joined by '-'; it covers a key when one word is the key and, for a key
+    several sections share (name, bonds, endpoints), another is the section's name."""
+    sections = loader_keys(LOADER.read_text())
+    options = plugin_options(REPO)
+    print(f"\nfrom the sources: {sum(map(len, sections.values()))} keys in "
+          f"{len(sections)} sections {sorted(sections)}, "
+          f"{sum(map(len, options.values()))} plugin options")
+    for name, derived, known in (("loader", sections, KNOWN_KEYS),
+                                 ("plugins", options, KNOWN_OPTIONS)):
+        lost = {s: sorted(k - derived.get(s, set())) for s, k in known.items()
+                if k - derived.get(s, set())}
+        assert not lost, f"reading keys from the {name} sources missed {lost}: fix the regexes"
+        odd = sorted(k for keys in derived.values() for k in keys
+                     if not re.fullmatch(r"[a-z][a-z0-9_]*", k))
+        assert not odd, f"not key names: {odd}"
+
+    words = [set(c[0].split("-")) for c in CASES]
+    shared = {k for k in set().union(*sections.values())
+              if sum(k in keys for keys in sections.values()) > 1}
+    missing = []
+    for section, keys in sorted(sections.items()):
+        for key in sorted(keys):
+            if (section, key) in ELSEWHERE:
+                file, func = ELSEWHERE[(section, key)]
+                assert f"def {func}(" in (Path(__file__).parent / file).read_text(), \
+                    f"{file}::{func} (named as covering {section}.{key}) is gone"
+                continue
+            need_section = key in shared and section != "top"
+            if not any(key in w and (not need_section or section in w) for w in words):
+                missing.append(f"{section}.{key}")
+    for plugin, keys in sorted(options.items()):
+        missing += [f"{plugin}.{k}" for k in sorted(keys)
+                    if not any(k in w and plugin in w for w in words)]
+    print(f"{len(CASES)} cases, each run with --check-config and as a normal start")
     assert not missing, f"no case for {missing}"
-    assert len(CASES) >= 50
+    assert len({c[0] for c in CASES}) == len(CASES), "case ids are unique"
+    assert len(CASES) >= 150
 
 
 @pytest.mark.parametrize("text,words", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
@@ -242,6 +479,9 @@ def test_config_error(mavbond_bin, plugin_dir, tmp_path, text, words, check):
     body, line, column = locate(text)
     path = tmp_path / "bad.yaml"
     path.write_text(body)
+    for name, (content, mode) in KEY_FILES.items():
+        (tmp_path / name).write_text(content)
+        os.chmod(tmp_path / name, mode)
     args = [mavbond_bin, "-c", str(path), "--plugin-dir", plugin_dir]
     r = subprocess.run(args + (["--check-config"] if check else []), capture_output=True,
                        text=True, timeout=10)
