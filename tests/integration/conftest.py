@@ -71,3 +71,39 @@ def tlog_files():
     if not d.is_dir():
         return []
     return sorted(p for p in d.iterdir() if p.suffix in (".tlog", ".mavlink"))
+
+
+@pytest.fixture
+def lab(mavbond_bin, tmp_path, plugin_dir):
+    """Factories for gateways and link emulators; everything started is stopped at the end."""
+    from bonding_helpers import Emu, Gateway, udp_sock
+
+    class Lab:
+        def __init__(self):
+            self.gateways, self.emus, self.socks = [], [], []
+            self.workdir = tmp_path
+
+        def gateway(self, endpoints, bonds=(), filters=(), name="mavbond", **top):
+            g = Gateway(mavbond_bin, tmp_path, endpoints, bonds, filters, name=name,
+                        plugin_dir=plugin_dir, **top)
+            self.gateways.append(g)
+            return g.start()
+
+        def emu(self, name, listen_port, forward_port, seed, **opts):
+            e = Emu(tmp_path, name, listen_port, forward_port, seed=seed, **opts)
+            self.emus.append(e)
+            return e.start()
+
+        def sock(self, port=0):
+            s = udp_sock(port)
+            self.socks.append(s)
+            return s
+
+    lab = Lab()
+    yield lab
+    for g in lab.gateways:
+        g.kill()
+    for e in lab.emus:
+        e.kill()
+    for s in lab.socks:
+        s.close()

@@ -13,15 +13,14 @@ import re
 import random
 import subprocess
 import time
-from collections import Counter, defaultdict
+from collections import Counter
 from pathlib import Path
 
 import pytest
 
 from helpers import HOST, FrameMaker, free_port, udp_client, udp_server
-from bonding_helpers import (Emu, Gateway, Receiver, content_key, gcs_hello, multiset_diff,
-                             paced_events, paced_send, timestamp_of, tlog,
-                             udp_sock, with_seq, Ticker)
+from bonding_helpers import (Receiver, content_key, gcs_hello, multiset_diff, paced_events,
+                             paced_send, timestamp_of, tlog, with_seq, Ticker)
 from synth import ardupilot_stream
 
 # These tests judge links through emulators and two gateways, on real processes sharing the
@@ -30,42 +29,6 @@ from synth import ardupilot_stream
 # Each attempt asserts everything; a test is retried at most twice, and scripts/test lists the
 # reruns (pytest -rR), so a flaky result is visible, never hidden.
 pytestmark = pytest.mark.flaky(reruns=2)
-
-
-
-@pytest.fixture
-def lab(mavbond_bin, tmp_path, plugin_dir):
-    """Factories for gateways and link emulators; everything started is stopped at the end."""
-
-    class Lab:
-        def __init__(self):
-            self.gateways, self.emus, self.socks = [], [], []
-            self.workdir = tmp_path
-
-        def gateway(self, endpoints, bonds=(), filters=(), name="mavbond", **top):
-            g = Gateway(mavbond_bin, tmp_path, endpoints, bonds, filters, name=name,
-                        plugin_dir=plugin_dir, **top)
-            self.gateways.append(g)
-            return g.start()
-
-        def emu(self, name, listen_port, forward_port, seed, **opts):
-            e = Emu(tmp_path, name, listen_port, forward_port, seed=seed, **opts)
-            self.emus.append(e)
-            return e.start()
-
-        def sock(self, port=0):
-            s = udp_sock(port)
-            self.socks.append(s)
-            return s
-
-    lab = Lab()
-    yield lab
-    for g in lab.gateways:
-        g.kill()
-    for e in lab.emus:
-        e.kill()
-    for s in lab.socks:
-        s.close()
 
 
 def ground_gateway(lab, links, filters, name="ground", gcs_port=None, **top):

@@ -11,13 +11,13 @@ import re
 import socket
 import time
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Tuple
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from helpers import HOST, REPO, FrameMaker, free_port, recv_datagrams, udp_client, udp_server
-from bonding_helpers import Emu, Gateway, Receiver, paced_send, tlog, udp_sock
+from bonding_helpers import Receiver, paced_send, tlog
 from synth import ardupilot_stream
 
 DASHBOARD = REPO / "conf" / "examples" / "grafana-mavbond.json"
@@ -113,40 +113,6 @@ def vm_rss_kib(pid: int) -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     raise AssertionError("no VmRSS")
-
-
-@pytest.fixture
-def lab(mavbond_bin, tmp_path, plugin_dir):
-    """Factories for gateways and link emulators; everything started is stopped at the end."""
-
-    class Lab:
-        def __init__(self):
-            self.gateways, self.emus, self.socks = [], [], []
-
-        def gateway(self, endpoints, bonds=(), filters=(), name="mavbond", **top):
-            g = Gateway(mavbond_bin, tmp_path, endpoints, bonds, filters, name=name,
-                        plugin_dir=plugin_dir, **top)
-            self.gateways.append(g)
-            return g.start()
-
-        def emu(self, name, listen_port, forward_port, seed, **opts):
-            e = Emu(tmp_path, name, listen_port, forward_port, seed=seed, **opts)
-            self.emus.append(e)
-            return e.start()
-
-        def sock(self):
-            s = udp_sock()
-            self.socks.append(s)
-            return s
-
-    lab = Lab()
-    yield lab
-    for g in lab.gateways:
-        g.kill()
-    for e in lab.emus:
-        e.kill()
-    for s in lab.socks:
-        s.close()
 
 
 def metrics_gateway(lab, tmp_path, **metrics):
