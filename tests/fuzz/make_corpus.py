@@ -154,7 +154,7 @@ def stream_seeds(frames: dict, rng: random.Random) -> dict:
     for k in range(24):
         parts = []
         size = 0
-        while size < 3000 and pos < len(telemetry):
+        while size < 1000 and pos < len(telemetry):
             r = rng.random()
             if r < 0.08:
                 part = noise(rng, rng.randint(1, 40), magic_rate=0.2)
