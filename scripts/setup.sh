@@ -7,7 +7,8 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 BUILD=${MAVBOND_BUILD_DIR:-$ROOT/build}
 VENV=${MAVBOND_VENV:-$ROOT/.venv}
 DEB_PACKAGES=(g++ meson ninja-build pkgconf libyaml-cpp-dev libboost-dev libgtest-dev libgmock-dev
-              python3 python3-venv ca-certificates procps iproute2)
+              python3 python3-venv ca-certificates procps iproute2
+              clang-14 clang libclang-rt-14-dev)   # scripts/fuzz: libFuzzer
 # One line: scripts/package reads it. matplotlib draws scripts/compare's plots; prometheus-client
 # parses /metrics in tests/integration/test_metrics.py.
 PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 pytest-rerunfailures==15.0 matplotlib==3.10.8 prometheus-client==0.26.0)
@@ -53,7 +54,8 @@ build_project() {
 
 install_debian_packages
 make_venv
-build_project
+# scripts/fuzz builds only its own tree (MAVBOND_SETUP_NO_BUILD=1).
+[ "${MAVBOND_SETUP_NO_BUILD:-0}" = 1 ] || build_project
 PY="$VENV/bin/python"
 MAVBOND="$BUILD/src/mavbond"
 export MAVBOND_BIN="$MAVBOND"

@@ -7,6 +7,7 @@
 #include "config/config.h"
 
 #include <arpa/inet.h>
+#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -17,6 +18,7 @@
 #include <limits>
 #include <map>
 #include <set>
+#include <sstream>
 #include <utility>
 
 #include "mavlink/frame.h"
@@ -892,16 +894,104 @@ std::optional<Duration> parse_duration(std::string_view text) {
     return Duration(static_cast<int64_t>(ns + extra));
 }
 
-Result<Config> parse_config(const std::string& text, const std::string& name) {
-    try {
-        std::vector<YAML::Node> docs = YAML::LoadAll(text);
-        if (docs.size() > 1) {
-            return make_error(format_at(name, docs[1].Mark(),
-                                        "only one YAML document is allowed (found a second "
-                                        "one after '---')"));
+namespace {
+
+/// YAML allows no control character but tab and line breaks (its c-printable set), and
+/// yaml-cpp misreads them: a NUL ends a scalar early, and the error then points past the end
+/// of the line and carries the NUL into the message (found by tests/fuzz/fuzz_config). So the
+/// first one is refused here, where it is. Lines and columns count bytes, as yaml-cpp's do.
+std::optional<std::string> control_character_error(const std::string& text,
+                                                   const std::string& name) {
+    int line = 1;
+    size_t line_start = 0;
+    for (size_t i = 0; i < text.size(); ++i) {
+        const auto c = static_cast<unsigned char>(text[i]);
+        if (c == '\n') {
+            ++line;
+            line_start = i + 1;
+        } else if ((c < 0x20 && c != '\t' && c != '\r') || c == 0x7F) {
+            char what[64];
+            std::snprintf(what, sizeof what, "control character 0x%02X is not allowed in YAML", c);
+            return name + ":" + std::to_string(line) + ":" + std::to_string(i - line_start + 1) +
+                   ": " + what;
         }
+    }
+    return std::nullopt;
+}
+
+/// Where the documents of a YAML stream start, and their root nodes. It replaces LoadAll(),
+/// which loops forever, allocating, on a token no document can take, such as a stray ','
+/// (yaml-cpp issue #1040; found by tests/fuzz/fuzz_config): the parser hands out empty
+/// documents that all start at that token.
+class DocumentMarks : public YAML::EventHandler {
+public:
+    struct Document {
+        YAML::Mark start;
+        YAML::Mark root = YAML::Mark::null_mark();
+    };
+    std::vector<Document> documents;
+
+    void OnDocumentStart(const YAML::Mark& mark) override { documents.push_back({mark}); }
+    void OnDocumentEnd() override {}
+    void OnNull(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
+    void OnAlias(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
+    void OnScalar(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                  const std::string&) override {
+        node(mark);
+    }
+    void OnSequenceStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                         YAML::EmitterStyle::value) override {
+        node(mark);
+    }
+    void OnSequenceEnd() override {}
+    void OnMapStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                    YAML::EmitterStyle::value) override {
+        node(mark);
+    }
+    void OnMapEnd() override {}
+
+private:
+    void node(const YAML::Mark& mark) {
+        if (!documents.empty() && documents.back().root.is_null())
+            documents.back().root = mark;
+    }
+};
+
+/// The error for a text that is not exactly one YAML document, if it is not.
+std::optional<std::string> document_error(const std::string& text, const std::string& name) {
+    std::istringstream in(text);
+    YAML::Parser parser(in);
+    DocumentMarks marks;
+    // Three are enough: a second document, or one starting where the one before did.
+    for (int i = 0; i < 3 && parser.HandleNextDocument(marks); ++i) {
+    }
+    const auto& docs = marks.documents;
+    for (size_t k = 1; k < docs.size(); ++k) {
+        if (docs[k].start.pos == docs[k - 1].start.pos) {
+            const auto pos = static_cast<size_t>(docs[k - 1].start.pos);
+            const char c = pos < text.size() ? text[pos] : ' ';
+            return format_at(name, docs[k - 1].start,
+                             c > ' ' && c < 0x7F ? std::string("unexpected '") + c + "'"
+                                                 : std::string("unexpected text"));
+        }
+    }
+    if (docs.size() > 1) {
+        return format_at(name, docs[1].root.is_null() ? docs[1].start : docs[1].root,
+                         "only one YAML document is allowed (found a second one after '---')");
+    }
+    return std::nullopt;
+}
+
+}  // namespace
+
+Result<Config> parse_config(const std::string& text, const std::string& name) {
+    if (auto error = control_character_error(text, name))
+        return make_error(*error);
+    try {
+        if (auto error = document_error(text, name))
+            return make_error(*error);
         Parser parser(name);
-        return parser.parse(docs.empty() ? YAML::Node() : docs[0]);
+        return parser.parse(YAML::Load(text));
     } catch (const ConfigError& e) {
         return make_error(e.message);
     } catch (const YAML::Exception& e) {

@@ -10,6 +10,26 @@ import pytest
 from helpers import REPO, Daemon, Pty, make_config
 
 
+@pytest.fixture(autouse=True)
+def no_sanitizer_reports():
+    """After every test (and the fixtures that stop its daemons): each mavbond it created is
+    ended with SIGTERM, so LeakSanitizer runs, and a sanitizer report in any of their logs
+    fails the test. Without a sanitizer build there is never one."""
+    Daemon.created.clear()
+    yield
+    daemons = list(Daemon.created)
+    Daemon.created.clear()
+    reports = []
+    for d in daemons:
+        d.kill()
+        try:
+            d.check_sanitizers()
+        except AssertionError as e:
+            reports.append(str(e))
+    if reports:
+        pytest.fail("\n\n".join(reports), pytrace=False)
+
+
 @pytest.fixture(scope="session")
 def mavbond_bin() -> str:
     path = os.environ.get("MAVBOND_BIN", str(REPO / "build" / "src" / "mavbond"))

@@ -234,11 +234,30 @@ def parse_stats(text: str) -> List[dict]:
     return [d for d in (parse_stats_line(l) for l in complete.splitlines()) if d]
 
 
+# What AddressSanitizer, LeakSanitizer and UBSan print (a sanitizer build: scripts/test's
+# build-asan). UBSan may go on after its report, and leaks are reported only at a normal exit.
+SANITIZER_REPORT_RE = re.compile(r"ERROR: AddressSanitizer|ERROR: LeakSanitizer|runtime error:")
+
+
+def sanitizer_report(text: str) -> Optional[str]:
+    """The first sanitizer report in a log, with some context; None when there is none."""
+    m = SANITIZER_REPORT_RE.search(text)
+    if m is None:
+        return None
+    start = text.rfind("\n", 0, max(0, m.start() - 300)) + 1
+    return text[start:m.start() + 4000]
+
+
 class Daemon:
-    """One mavbond process with a config in `workdir`; stderr goes to a file."""
+    """One mavbond process with a config in `workdir`; stderr goes to a file. Every Daemon a
+    test creates is listed in Daemon.created, so conftest can end it gently and fail the test
+    on a sanitizer report in its log, whatever the test itself did."""
+
+    created: List["Daemon"] = []
 
     def __init__(self, binary: str, workdir: Path, config_text: str, name: str = "mavbond",
                  extra_args: Iterable[str] = ("--log-level", "debug")):
+        Daemon.created.append(self)
         self.binary = binary
         self.workdir = workdir
         self.config_path = workdir / f"{name}.yaml"
@@ -322,6 +341,7 @@ class Daemon:
                 raise AssertionError(f"mavbond did not exit {timeout}s after SIGTERM")
         self.returncode = self.proc.returncode
         self._logf.close()
+        self.check_sanitizers()
         return self.returncode
 
     def final_stats(self) -> Dict[str, dict]:
@@ -330,12 +350,24 @@ class Daemon:
         n = len(self.endpoint_names)
         return {d["endpoint"]: d for d in lines[-n:]}
 
-    def kill(self) -> None:
+    def kill(self, grace: float = 5.0) -> None:
+        """Ends the process whatever state it is in: SIGTERM first, so that a sanitizer build
+        still checks for leaks at exit, then SIGKILL after `grace` seconds. Never raises."""
         if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
         if self.proc is not None and not self._logf.closed:
             self._logf.close()
+
+    def check_sanitizers(self) -> None:
+        """Fails with the report when the log holds a sanitizer report."""
+        report = sanitizer_report(self.log())
+        if report is not None:
+            raise AssertionError(f"sanitizer report in {self.log_path}:\n{report}")
 
 
 # --- pseudo-terminals ---------------------------------------------------------------------

@@ -418,6 +418,8 @@ def judge(args, samples, lag_max: float) -> int:
           f"{'ok' if ok_rss else 'GREW'}; descriptors {base['fds']} -> {fds}: "
           f"{'ok' if ok_fds else 'CHANGED'}")
     print("verdict:", "pass" if ok_rss and ok_fds else "FAIL")
+    # Its two checks (RSS, descriptors) in the form scripts/test counts.
+    print(f"soak: {ok_rss + ok_fds} passed, {2 - ok_rss - ok_fds} failed")
     return 0 if ok_rss and ok_fds else 1
 
 

@@ -725,3 +725,36 @@ TEST(MetricsConfig, ErrorsNameTheirPlace) {
 
 }  // namespace
 }  // namespace mavbond
+
+// YAML allows no control character but tab and line breaks; yaml-cpp would misplace the error
+// (past the end of the line) and put the NUL in the message. Found by tests/fuzz/fuzz_config.
+namespace mavbond {
+TEST(ConfigParse, ControlCharacterRefusedWhereItIs) {
+    const std::string nul("log_level: info\nend\0points: []\n", 31);
+    auto config = parse_config(nul, "t.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("t.yaml:2:4: control character 0x00 is not allowed in YAML", config.error().message);
+    config = parse_config("log_level: info\x1b\n", "t.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("t.yaml:1:16: control character 0x1B is not allowed in YAML", config.error().message);
+    // Tab and CR are allowed: a CRLF file with a tab in a value loads.
+    config = parse_config("endpoints:\r\n  - {name: a, type: uart, device: \"/dev/a\tb\"}\r\n",
+                          "t.yaml");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    EXPECT_EQ("/dev/a\tb", config->endpoints[0].device);
+}
+
+// yaml-cpp's LoadAll() looped forever, allocating, on a stray ','. Found by tests/fuzz/fuzz_config.
+TEST(ConfigParse, StrayTokenRefused) {
+    auto config = parse_config(",", "t.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("t.yaml:1:1: unexpected ','", config.error().message);
+    config = parse_config("- name: gcs\n,\n", "t.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("t.yaml:2:1: unexpected ','", config.error().message);
+    config = parse_config("log_level: info\n---\n,\n", "t.yaml");
+    ASSERT_FALSE(config.has_value());
+    EXPECT_EQ("t.yaml:3:1: only one YAML document is allowed (found a second one after '---')",
+              config.error().message);
+}
+}  // namespace mavbond

@@ -519,5 +519,24 @@ TEST(StreamParser, ResetCountsBufferedBytesAsGarbage) {
     EXPECT_EQ(frames, std::vector<Bytes>{v});
 }
 
+// A false v2 header (unknown msgid, 254 bytes claimed, more than the stream holds yet) spans
+// an 8-byte v1 frame of an unknown msgid, then a good frame. The stream parser rejects only
+// the false start byte and yields the unknown-id frame, as the datagram parser does; it used
+// to skip straight to the good frame (found by tests/fuzz/fuzz_stream).
+TEST(StreamParser, UnknownIdFrameInsideAnIncompleteCandidateIsKept) {
+    const Bytes false_start = {0xFD};
+    const Bytes unknown_v1 = {0xFE, 0, 0, 0, 0xFD, 96, 0xED, 0x36};   // msgid 96: unknown
+    const Bytes good = vec("v2_heartbeat").bytes;
+    const Bytes data = cat({false_start, unknown_v1, good});
+    ASSERT_EQ(find_message(96), nullptr);
+    ParserCounters dc;
+    const std::vector<Bytes> want = {unknown_v1, good};
+    EXPECT_EQ(parse_datagram(data, dc), want);
+    StreamParser p(UnknownIdPolicy::Forward);
+    EXPECT_EQ(parse_stream(p, data, {data.size()}), want);
+    EXPECT_EQ(p.counters().garbage_bytes, 1u);
+    EXPECT_EQ(p.counters().unknown_ids, 1u);
+}
+
 }  // namespace
 }  // namespace mavbond
