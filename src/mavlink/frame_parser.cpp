@@ -51,11 +51,16 @@ inline bool crc_matches(const uint8_t* p, size_t header_len, size_t payload_len,
     return crc == static_cast<uint16_t>(ck[0] | (ck[1] << 8));
 }
 
-/// Whether an unknown-id frame is a known frame with one bit of its id flipped in transit: the
-/// CRC covers the id, so it verifies once the bit is put back. Such a frame must not be
-/// forwarded as an unverifiable unknown (on a bond, its good copy comes from another link).
-bool damaged_known_frame(const uint8_t* p, size_t header_len, size_t payload_len, uint32_t msgid,
-                         unsigned id_bits) {
+/// Whether a complete unknown-id frame at p is a known frame with one bit of its id flipped in
+/// transit: the CRC covers the id, so it verifies once the bit is put back. Such a frame must
+/// not be forwarded as an unverifiable unknown (on a bond, its good copy comes from another
+/// link).
+bool damaged_known_frame(const uint8_t* p) {
+    const bool v2 = p[0] == kMagicV2;
+    const size_t header_len = v2 ? kHeaderLenV2 : kHeaderLenV1;
+    const size_t payload_len = p[1];
+    const uint32_t msgid = v2 ? p[7] | (p[8] << 8) | (static_cast<uint32_t>(p[9]) << 16) : p[5];
+    const unsigned id_bits = v2 ? 24 : 8;
     std::array<uint8_t, kHeaderLenV2> header;
     std::memcpy(header.data(), p, header_len);
     const uint8_t* ck = p + header_len + payload_len;
@@ -97,9 +102,7 @@ Candidate examine(const uint8_t* p, size_t avail) {
         if (avail < len)
             return {Verdict::NeedMore, len, info};
         if (info == nullptr)
-            return {damaged_known_frame(p, kHeaderLenV2, payload_len, msgid, 24) ? Verdict::BadCrc
-                                                                                : Verdict::Unknown,
-                    len, nullptr};
+            return {Verdict::Unknown, len, nullptr};
         if (!crc_matches(p, kHeaderLenV2, payload_len, info->crc_extra))
             return {Verdict::BadCrc, len, info};
         return {Verdict::Good, len, info};
@@ -115,9 +118,7 @@ Candidate examine(const uint8_t* p, size_t avail) {
     if (avail < len)
         return {Verdict::NeedMore, len, info};
     if (info == nullptr)
-        return {damaged_known_frame(p, kHeaderLenV1, payload_len, p[5], 8) ? Verdict::BadCrc
-                                                                          : Verdict::Unknown,
-                len, nullptr};
+        return {Verdict::Unknown, len, nullptr};
     if (!crc_matches(p, kHeaderLenV1, payload_len, info->crc_extra))
         return {Verdict::BadCrc, len, info};
     return {Verdict::Good, len, info};
@@ -235,6 +236,14 @@ bool scan(const uint8_t* base, size_t& pos, size_t end, bool final, UnknownIdPol
             }
             if (inner == Inner::Pending || !complete)
                 return false;
+            // Only now, complete and with no good frame inside: a damaged known frame is a CRC
+            // error. Judged before the inner frames, it was counted or not depending on how
+            // much of it had arrived when the good frame inside was found (found by fuzz_stream).
+            if (damaged_known_frame(p)) {
+                ++counters.crc_errors;
+                reject = true;
+                break;
+            }
             // Nor is it trusted unless a frame boundary follows: a start byte, or the end of
             // the datagram (stream mode waits for the next byte).
             const size_t after = pos + c.len;

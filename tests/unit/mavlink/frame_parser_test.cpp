@@ -538,5 +538,47 @@ TEST(StreamParser, UnknownIdFrameInsideAnIncompleteCandidateIsKept) {
     EXPECT_EQ(p.counters().unknown_ids, 1u);
 }
 
+// A known frame whose msgid lost a bit in transit (so it looks unknown) and whose payload
+// holds a whole good frame: the good frame is yielded, and the damaged one counts the same
+// whether it arrived whole or byte by byte (it used to be a CRC error only when whole; found
+// by tests/fuzz/fuzz_stream).
+TEST(StreamParser, DamagedKnownFrameHidingAGoodOneCountsTheSameInAnySplit) {
+    const Bytes good = vec("v2_heartbeat").bytes;
+    uint32_t id = 0;
+    uint32_t flipped = 0;
+    for (uint32_t m = 0; m < 512 && flipped == 0; ++m) {
+        const MessageInfo* info = find_message(m);
+        for (unsigned bit = 0; info != nullptr && info->max_len >= good.size() + 4 && bit < 24;
+             ++bit) {
+            if (find_message(m ^ (1u << bit)) == nullptr) {
+                id = m;
+                flipped = m ^ (1u << bit);
+                break;
+            }
+        }
+    }
+    ASSERT_NE(flipped, 0u);
+    Bytes payload = cat({{1, 2}, good, {3, 4}});
+    Bytes frame = {0xFD, static_cast<uint8_t>(payload.size()), 0, 0, 7, 1, 1,
+                   static_cast<uint8_t>(id), static_cast<uint8_t>(id >> 8),
+                   static_cast<uint8_t>(id >> 16)};
+    frame.insert(frame.end(), payload.begin(), payload.end());
+    uint16_t crc = crc_x25(std::span<const uint8_t>(frame).subspan(1));
+    crc = crc_x25_byte(find_message(id)->crc_extra, crc);
+    frame.push_back(static_cast<uint8_t>(crc));
+    frame.push_back(static_cast<uint8_t>(crc >> 8));
+    frame[7] = static_cast<uint8_t>(flipped);
+    frame[8] = static_cast<uint8_t>(flipped >> 8);
+    frame[9] = static_cast<uint8_t>(flipped >> 16);
+
+    StreamParser whole(UnknownIdPolicy::Forward);
+    StreamParser bytewise(UnknownIdPolicy::Forward);
+    EXPECT_EQ(parse_stream(whole, frame, {frame.size()}), std::vector<Bytes>{good});
+    EXPECT_EQ(parse_stream(bytewise, frame, {1}), std::vector<Bytes>{good});
+    EXPECT_EQ(whole.counters().crc_errors, bytewise.counters().crc_errors);
+    EXPECT_EQ(whole.counters().garbage_bytes, frame.size() - good.size());
+    EXPECT_EQ(bytewise.counters().garbage_bytes, frame.size() - good.size());
+}
+
 }  // namespace
 }  // namespace mavbond
