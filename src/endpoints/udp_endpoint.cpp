@@ -205,7 +205,7 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
     if (connect(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
         return make_error("cannot connect to " + to_string(*addr) + ": " + errno_text(errno));
     std::unique_ptr<UdpClient> client(
-        new UdpClient(config, loop, router, policy, std::move(fd.value()), *addr));
+        new UdpClient(config, loop, router, policy, std::move(fd.value())));
     auto w = loop.watch(client->fd_.get(), EPOLLIN,
                         [c = client.get()](uint32_t events) { c->on_events(events); });
     if (!w)
@@ -217,9 +217,9 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
 }
 
 UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router,
-                     UnknownIdPolicy policy, UniqueFd fd, const sockaddr_in& addr)
+                     UnknownIdPolicy policy, UniqueFd fd)
     : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
-      policy_(policy), fd_(std::move(fd)), addr_(addr) {}
+      policy_(policy), fd_(std::move(fd)) {}
 
 UdpClient::~UdpClient() { router_.remove(*this); }
 

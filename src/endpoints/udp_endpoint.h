@@ -102,14 +102,13 @@ protected:
 
 private:
     UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
-              UniqueFd fd, const sockaddr_in& addr);
+              UniqueFd fd);
     void on_events(uint32_t events);
 
     EventLoop& loop_;
     Router& router_;
     UnknownIdPolicy policy_;
-    UniqueFd fd_;
-    sockaddr_in addr_;
+    UniqueFd fd_;  // connected to the peer
     EventLoop::Watch watch_;
     DatagramBatch batch_;
 };
