@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cerrno>
 
+#include "core/event_loop.h"
 #include "core/log.h"
 
 namespace mavbond {
@@ -47,6 +48,13 @@ Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode
 }
 
 Endpoint::~Endpoint() = default;
+
+void Endpoint::defer(EventLoop& loop, std::function<void()> fn) {
+    loop.defer([alive = std::weak_ptr<void>(alive_), fn = std::move(fn)] {
+        if (!alive.expired())
+            fn();
+    });
+}
 
 bool Endpoint::accept_in(const Frame& frame) {
     if (filter_in_.empty() || filter_in_.passes(frame.msgid))

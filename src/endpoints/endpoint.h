@@ -137,6 +137,9 @@ protected:
 
     /// Drops everything queued (reconnects start at a frame boundary), counting it.
     void clear_tx();
+    /// Runs `fn` after this dispatch round, unless the endpoint is gone by then (a reload may
+    /// destroy it in the same round).
+    void defer(EventLoop& loop, std::function<void()> fn);
 
     EndpointStats stats_;
 
@@ -147,6 +150,7 @@ private:
     std::string name_;
     uint32_t id_ = kNoId;
     TxQueue tx_;
+    std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the endpoint
     MessageFilter filter_in_;
     MessageFilter filter_out_;
     std::shared_ptr<SignatureVerifier> verifier_;  // null unless the config has `signing:`

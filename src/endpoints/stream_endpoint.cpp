@@ -58,7 +58,7 @@ void StreamEndpoint::on_write_error(int err) {
         return;
     write_failed_ = true;
     clear_tx();
-    loop_.defer([this, err] {
+    defer(loop_, [this, err] {
         write_failed_ = false;
         if (!fd_)
             return;  // the read path saw the end meanwhile and closed

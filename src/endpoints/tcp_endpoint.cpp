@@ -104,7 +104,7 @@ void TcpServer::on_accept() {
 
 void TcpServer::drop_client(TcpConnection& client) {
     router_.remove(client);
-    loop_.defer([this, target = &client] {
+    defer(loop_, [this, target = &client] {
         auto it = std::find_if(clients_.begin(), clients_.end(),
                                [target](const auto& c) { return c.get() == target; });
         if (it != clients_.end()) {

@@ -94,6 +94,7 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
 }
 
 FilterChain::~FilterChain() {
+    alive_.reset();
     for (auto& inst : instances_) {
         if (inst->self)
             inst->plugin->descriptor().destroy(inst->self);
@@ -319,17 +320,26 @@ uint64_t FilterChain::timer_add(uint64_t period_ns, std::function<bool()> fn) {
     timers_[id] = loop_.schedule(period, [this, id, period, fn = std::move(fn)] {
         if (fn())
             return period;
-        loop_.defer([this, id] { timers_.erase(id); });
+        defer_erase(id);
         return Duration::zero();
     });
     return id;
+}
+
+// Erased after this dispatch round: a timer may end from inside its own callback. The chain
+// may be gone by then (a reload replaced it), hence the weak token.
+void FilterChain::defer_erase(uint64_t id) {
+    loop_.defer([this, id, alive = std::weak_ptr<void>(alive_)] {
+        if (!alive.expired())
+            timers_.erase(id);
+    });
 }
 
 void FilterChain::timer_cancel(uint64_t id) {
     auto it = timers_.find(id);
     if (it != timers_.end())
         it->second.cancel();
-    loop_.defer([this, id] { timers_.erase(id); });
+    defer_erase(id);
 }
 
 size_t FilterChain::links(const mavbond_link** out, size_t max) {

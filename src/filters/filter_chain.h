@@ -75,6 +75,8 @@ private:
     std::vector<const mavbond_link*> link_list_;         // registered links, id order
     std::map<uint64_t, EventLoop::Timer> timers_;
     uint64_t next_timer_ = 1;
+    std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the chain
+    void defer_erase(uint64_t timer_id);
     mavbond_frame_notes notes_{};
 };
 

@@ -428,3 +428,19 @@ class Pty:
 def split_stream(data: bytes) -> List[bytes]:
     """Frames of a raw byte stream that holds only whole frames."""
     return [r.data for r in tlog.iter_records_bytes(data, raw=True) if r.kind == "frame"]
+
+
+# --- the daemon seen from /proc ------------------------------------------------------------
+
+def rss_kib(pid: int) -> int:
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def rss_means_memory(pid: int) -> bool:
+    """False for a daemon built with AddressSanitizer: freed memory waits in its quarantine
+    (256 MB) before reuse, so RSS measures ASan, not mavbond. In that build LeakSanitizer
+    checks for leaks at the daemon's exit instead, and the descriptor checks still hold."""
+    return "libasan" not in open(f"/proc/{pid}/maps").read()

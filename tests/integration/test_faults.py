@@ -15,20 +15,14 @@ import threading
 import time
 from typing import List, Tuple
 
-from helpers import (HOST, FrameMaker, corrupt_crc, drain, free_port, recv_datagrams,
-                     split_stream, tcp_server, tlog, udp_client, udp_server, udp_socket)
+from helpers import (HOST, FrameMaker, corrupt_crc, drain, free_port, recv_datagrams, rss_kib,
+                     rss_means_memory, split_stream, tcp_server, tlog, udp_client, udp_server,
+                     udp_socket)
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
 # --- the daemon seen from /proc ------------------------------------------------------------
-
-def rss_kib(pid: int) -> int:
-    for line in open(f"/proc/{pid}/status"):
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise AssertionError(f"no VmRSS for {pid}")
-
 
 def fd_count(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
@@ -167,7 +161,8 @@ def test_tcp_client_that_never_reads(start_daemon):
         # what went to the stuck client after it filled up was dropped, but for what the
         # kernel took as the client's window opened a little
         assert dropped - st0["tx_dropped"] > rounds * len(block) * 0.9
-        assert rss1 - rss0 < 1024, f"RSS grew {rss1 - rss0} KiB while {volume} bytes passed"
+        if rss_means_memory(pid):
+            assert rss1 - rss0 < 1024, f"RSS grew {rss1 - rss0} KiB while {volume} bytes passed"
         d.wait_log(r"\[t\] \d+ frames dropped on transmit in the last 1s", timeout=5)
 
         # Now it reads: whatever the daemon still queued arrives, nothing more is dropped.
@@ -242,7 +237,8 @@ def test_thousand_tcp_connects_no_leak(start_daemon):
           f"RSS {rss0} -> {rss1} KiB; rx_frames={st['rx_frames']} (sent {frames_sent})")
     assert fd1 == fd0, "a descriptor leaked"
     # a leak of half a KiB per connection would show; heap noise is about 100 KiB here
-    assert rss1 - rss0 < 512, f"RSS grew {rss1 - rss0} KiB over 1000 connections"
+    if rss_means_memory(pid):
+        assert rss1 - rss0 < 512, f"RSS grew {rss1 - rss0} KiB over 1000 connections"
     assert st["rx_frames"] == frames_sent
     # still serving: two clients hear each other
     a = socket.create_connection((HOST, tcp_port), timeout=5)
