@@ -55,6 +55,8 @@ void Router::add(Endpoint& endpoint) {
         routes_[id].clear();
     }
     bond_of_[id] = bond_index(endpoint.config().bond);
+    if (endpoint.receives_everything())
+        recorders_.push_back(&endpoint);
     endpoint.set_id(id);
     if (filter_)
         filter_->on_endpoint(endpoint, true);
@@ -74,6 +76,8 @@ void Router::remove(Endpoint& endpoint) {
     }
     bond_of_[id] = kNoBond;
     dirty_.erase(std::remove(dirty_.begin(), dirty_.end(), &endpoint), dirty_.end());
+    recorders_.erase(std::remove(recorders_.begin(), recorders_.end(), &endpoint),
+                     recorders_.end());
     endpoint.set_id(Endpoint::kNoId);
 }
 
@@ -160,8 +164,8 @@ void Router::deliver(const Frame& frame, Endpoint& to, TimePoint now) {
 }
 
 void Router::deliver_to_recorders(const Endpoint& from, const Frame& frame, TimePoint now) {
-    for (Endpoint* to : endpoints_) {
-        if (to && to->receives_everything() && may_send(from, *to))
+    for (Endpoint* to : recorders_) {
+        if (may_send(from, *to))
             deliver(frame, *to, now);
     }
 }

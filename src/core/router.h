@@ -113,6 +113,7 @@ private:
     std::vector<uint32_t> bond_of_;               // index = endpoint id
     std::vector<std::vector<Route>> routes_;      // index = endpoint id
     std::vector<Endpoint*> dirty_;
+    std::vector<Endpoint*> recorders_;            // endpoints that receive everything (tlog)
     FrameFilter* filter_ = nullptr;
     uint64_t frames_routed_ = 0;
     uint64_t frames_without_destination_ = 0;
