@@ -1001,7 +1001,7 @@ Result<Config> parse_config(const std::string& text, const std::string& name) {
     }
 }
 
-Result<Config> load_config(const std::string& path) {
+Result<std::string> read_text_file(const std::string& path) {
     FILE* f = std::fopen(path.c_str(), "rb");
     if (!f)
         return make_error(path + ": cannot open: " + std::strerror(errno));
@@ -1014,7 +1014,14 @@ Result<Config> load_config(const std::string& path) {
     std::fclose(f);
     if (read_errno != 0)
         return make_error(path + ": cannot read: " + std::strerror(read_errno));
-    return parse_config(text, path);
+    return text;
+}
+
+Result<Config> load_config(const std::string& path) {
+    auto text = read_text_file(path);
+    if (!text)
+        return text.error();
+    return parse_config(text.value(), path);
 }
 
 namespace {

@@ -150,6 +150,9 @@ bool same_settings(const EndpointConfig& a, const EndpointConfig& b);
 bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfig>& b);
 bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterConfig>& b);
 
+/// A whole file as text; the error is "path: cannot open|read: reason".
+Result<std::string> read_text_file(const std::string& path);
+
 /// Loads and validates a config file. The error's message is "file:line:column: what".
 Result<Config> load_config(const std::string& path);
 /// Same, from text (for tests); `name` stands in for the file name in messages.

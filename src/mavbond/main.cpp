@@ -1,7 +1,6 @@
 // mavbond: the daemon's command line. The gateway itself is Daemon (daemon.h).
 #include <getopt.h>
 
-#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <string>
@@ -80,18 +79,12 @@ int parse_args(int argc, char** argv, Options& opts) {
 
 /// --import-mavlink-router: the YAML on stdout, what was not translated on stderr.
 int import_config(const std::string& path) {
-    FILE* f = fopen(path.c_str(), "rb");
-    if (!f) {
-        fprintf(stderr, "mavbond: %s: cannot open: %s\n", path.c_str(), strerror(errno));
+    auto text = read_text_file(path);
+    if (!text) {
+        fprintf(stderr, "mavbond: %s\n", text.error().message.c_str());
         return 66;  // EX_NOINPUT
     }
-    std::string text;
-    char buf[8192];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
-        text.append(buf, n);
-    fclose(f);
-    auto imported = import_mavlink_router(text, path);
+    auto imported = import_mavlink_router(text.value(), path);
     if (!imported) {
         fprintf(stderr, "%s\n", imported.error().message.c_str());
         return kExitDataError;
