@@ -124,6 +124,8 @@ private:
         if (ep.type == EndpointType::Uart) {
             FUZZ_CHECK(!ep.device.empty() && ep.baud > 0, "uart '%s': device '%s' baud %u", name,
                        ep.device.c_str(), ep.baud);
+        } else if (ep.type == EndpointType::Tlog) {
+            FUZZ_CHECK(!ep.directory.empty(), "tlog '%s': no directory", name);
         } else {
             in_addr addr{};
             FUZZ_CHECK(inet_pton(AF_INET, ep.host.c_str(), &addr) == 1 && ep.port != 0,

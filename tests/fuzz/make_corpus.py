@@ -219,6 +219,12 @@ def config_seeds() -> dict:
     seeds = {}
     for path in sorted((REPO / "conf").glob("*.yaml")) + sorted((REPO / "conf" / "examples").glob("*.yaml")):
         seeds[f"conf-{path.stem}"] = path.read_bytes()
+        # The settings a shipped config offers commented out ("#metrics:", "#  - name: x"),
+        # switched on, so the seeds hold every kind of endpoint and section.
+        text = path.read_text()
+        offered = re.sub(r"^#(?=[a-z_]+:|  +(?:- )?[a-z_]+:)", "", text, flags=re.M)
+        if offered != text:
+            seeds[f"conf-{path.stem}-uncommented"] = offered.encode()
     bad = unit_test_bad_configs()
     if len(bad) < 20:
         raise SystemExit(f"found only {len(bad)} malformed configs in config_test.cpp: its "
