@@ -4,6 +4,7 @@
 
 #include "core/router.h"
 #include "filters/filter_chain.h"
+#include "filters/renumber_stage.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -31,10 +32,25 @@ const std::map<std::string, const char*>& counter_help() {
     return help;
 }
 
+/// Help texts of the renumbering counters, in RenumberStage::counters' names.
+const std::map<std::string, const char*>& renumber_help() {
+    static const std::map<std::string, const char*> help = {
+        {"renumbered", "Frames the bond delivered with a new sequence number."},
+        {"gaps", "Sequence numbers skipped on output: frames lost on every link of the bond."},
+        {"late_filled", "Frames delivered after a later one, given the number they had kept."},
+        {"offsets_learned", "A link's numbering offset set or changed (from a duplicate copy)."},
+        {"unmatched", "Duplicate copies whose first copy was no longer remembered."},
+        {"untracked", "Frames of sources beyond the renumbering table (left as they were)."},
+        {"signed_left_alone", "Signed frames passed with their own number (the signature covers it)."},
+    };
+    return help;
+}
+
 }  // namespace
 
 MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
-                           const FilterChain& chain, TimePoint started, TimePoint now) {
+                           const FilterChain& chain, const RenumberStage& renumber,
+                           TimePoint started, TimePoint now) {
     MetricSet set;
     set.gauge("mavbond_build_info", "Always 1; the version in a label.", 1,
               {{"version", MAVBOND_VERSION}});
@@ -76,6 +92,9 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
                           link->id() == bond.active_link ? 1 : 0,
                           {{"bond", bond.name}, {"link", link->name()}});
         }
+        for (const auto& [name, value] : renumber.counters(b))
+            set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
+                        {{"bond", bond.name}});
     }
     chain.collect_metrics(set);
     return set;

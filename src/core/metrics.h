@@ -1,5 +1,5 @@
 // What the metrics endpoint serves: every endpoint's counters, the bonds' state, the router's
-// totals, the uptime, and each filter's own samples (the stats plugin's per-link and delivered
+// totals, the uptime, what renumbering did, and each filter's own samples (the stats plugin's per-link and delivered
 // loss, dedup's duplicates, linkswitch's active link), as Prometheus families.
 #pragma once
 
@@ -13,8 +13,10 @@ namespace mavbond {
 
 class Router;
 class FilterChain;
+class RenumberStage;
 
 MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
-                           const FilterChain& chain, TimePoint started, TimePoint now);
+                           const FilterChain& chain, const RenumberStage& renumber,
+                           TimePoint started, TimePoint now);
 
 }  // namespace mavbond

@@ -1,5 +1,7 @@
 #include "filters/renumber_stage.h"
 
+#include <string>
+
 #include "core/log.h"
 #include "endpoints/endpoint.h"
 #include "mavlink/frame_writer.h"
@@ -57,16 +59,23 @@ void RenumberStage::on_endpoint(Endpoint& endpoint, bool added) {
     chain_.on_endpoint(endpoint, added);
 }
 
+std::vector<std::pair<const char*, uint64_t>> RenumberStage::counters(size_t bond) const {
+    if (bond >= bonds_.size() || !bonds_[bond].renumberer)
+        return {};
+    const SeqRenumberer::Counters& c = bonds_[bond].renumberer->counters();
+    return {{"renumbered", c.renumbered},           {"gaps", c.gaps},
+            {"late_filled", c.late_filled},         {"offsets_learned", c.offsets_learned},
+            {"unmatched", c.unmatched},             {"untracked", c.untracked},
+            {"signed_left_alone", bonds_[bond].signed_left_alone}};
+}
+
 void RenumberStage::log_summary() const {
     for (size_t i = 0; i < bonds_.size(); i++) {
-        if (!bonds_[i].renumberer)
-            continue;
-        const SeqRenumberer::Counters& c = bonds_[i].renumberer->counters();
-        log_notice("renumber bond=%s renumbered=%llu offsets_learned=%llu unmatched=%llu "
-                   "untracked=%llu signed_left_alone=%llu",
-                   router_.bonds()[i].name.c_str(), (unsigned long long)c.renumbered,
-                   (unsigned long long)c.offsets_learned, (unsigned long long)c.unmatched,
-                   (unsigned long long)c.untracked, (unsigned long long)bonds_[i].signed_left_alone);
+        std::string line;
+        for (const auto& [name, value] : counters(i))
+            line += std::string(" ") + name + "=" + std::to_string(value);
+        if (!line.empty())
+            log_notice("renumber bond=%s%s", router_.bonds()[i].name.c_str(), line.c_str());
     }
 }
 

@@ -4,7 +4,9 @@
 // renumbering, and signed frames (the signature covers seq, they are counted), pass untouched.
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "core/renumber.h"
@@ -23,6 +25,10 @@ public:
     Verdict on_ingress(const Frame& frame, Endpoint& from, TimePoint now) override;
     Verdict on_egress(const Frame& frame, Endpoint& to, TimePoint now) override;
     void on_endpoint(Endpoint& endpoint, bool added) override;
+
+    /// What bond `bond` (router index) did, as (name, count) pairs in a fixed order; empty
+    /// when it does not renumber. For the exit log, the status socket and /metrics alike.
+    std::vector<std::pair<const char*, uint64_t>> counters(size_t bond) const;
 
     /// One log line per renumbering bond: what it did.
     void log_summary() const;

@@ -211,7 +211,7 @@ void Daemon::open_metrics() {
     auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout},
                                      loop_, [this] {
                                          return metrics_document(endpoints_, router_, *chain_,
-                                                                 started_, loop_.now());
+                                                                 *renumber_, started_, loop_.now());
                                      });
     // As with the status socket: without its metrics the daemon still routes.
     if (m)
@@ -346,7 +346,16 @@ std::string Daemon::status_document() const {
         out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
                (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
                (active ? active->name() : "") +
-               "\",\"switches\":" + std::to_string(b.switches) + "}";
+               "\",\"switches\":" + std::to_string(b.switches);
+        const auto renumbered = renumber_->counters(i);
+        if (!renumbered.empty()) {
+            out += ",\"renumber\":{";
+            for (const auto& [name, value] : renumbered)
+                out += std::string(out.back() == '{' ? "\"" : ",\"") + name + "\":" +
+                       std::to_string(value);
+            out += "}";
+        }
+        out += "}";
     }
     return out + "],\"filters\":" + chain_->status_json() + "}";
 }

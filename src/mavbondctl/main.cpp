@@ -100,6 +100,14 @@ void print_table(const pt::ptree& doc) {
             printf("%-12s %-10s %-20s %8s\n", b.get("name", "").c_str(), b.get("tx", "").c_str(),
                    b.get("active", "").empty() ? "-" : b.get("active", "").c_str(),
                    b.get("switches", "").c_str());
+        for (const auto& [_, b] : bonds) {
+            if (auto r = b.get_child_optional("renumber"))
+                printf("renumber %s: %s frames renumbered, %s gaps (lost on every link), %s filled "
+                       "late, %s signed left alone\n",
+                       b.get("name", "").c_str(), r->get("renumbered", "0").c_str(),
+                       r->get("gaps", "0").c_str(), r->get("late_filled", "0").c_str(),
+                       r->get("signed_left_alone", "0").c_str());
+        }
     }
     for (const auto& [_, f] : doc.get_child("filters", {})) {
         printf("\nfilter %s: %s frames dropped\n", f.get("name", "").c_str(), f.get("dropped", "0").c_str());

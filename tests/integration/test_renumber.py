@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import random
 import re
+import subprocess
 from collections import Counter, defaultdict
+from pathlib import Path
 
 import pytest
 
@@ -20,6 +22,7 @@ from helpers import HOST, free_port, mav2, udp_server
 from bonding_helpers import (Gateway, Receiver, content_key, multiset_diff, paced_events,
                              tlog, udp_sock, with_seq)
 from synth import ardupilot_stream
+from test_metrics import scrape, status_document, tcp_port, value
 
 pytestmark = pytest.mark.flaky(reruns=2)
 
@@ -86,14 +89,18 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
     events.sort(key=lambda e: e[0])
 
     gws, rxs, targets, socks = [], [], [], []
+    # The renumbering gateway also answers on its status socket and /metrics.
+    status_path, m_port = tmp_path / "status.sock", tcp_port()
     for name, renumber in (("renumber", True), ("plain", False)):
         ga, gb, gcs = free_port(), free_port(), free_port()
+        shown = dict(status_socket=str(status_path),
+                     metrics=f"{{listen: {HOST}:{m_port}}}") if renumber else {}
         g = Gateway(mavbond_bin, tmp_path,
                     [udp_server("link_a", ga, bond="vehicle"), udp_server("link_b", gb, bond="vehicle"),
                      udp_server("gcs", gcs)],
                     bonds=[{"name": "vehicle", "renumber": renumber}],
                     filters=[{"plugin": "dedup", "bonds": ["vehicle"], "key": "content"}],
-                    name=name, plugin_dir=plugin_dir, log_level="info").start()
+                    name=name, plugin_dir=plugin_dir, log_level="info", **shown).start()
         gws.append(g)
         s = udp_sock()
         socks.append(s)
@@ -109,6 +116,11 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
             rx.wait_quiet(0.5)
         got = {name: [f for f in rx.stop() if tlog.sysid(f) in (1, 2)]
                for name, rx in zip(("renumber", "plain"), rxs)}
+        status = {b["name"]: b for b in status_document(status_path)["bonds"]}
+        metrics = scrape(m_port)
+        ctl = subprocess.run([str(Path(mavbond_bin).with_name("mavbondctl")), "status",
+                              "--socket", str(status_path)], capture_output=True, text=True,
+                             timeout=10)
         for g in gws:
             assert g.stop() == 0
     finally:
@@ -146,3 +158,13 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
     assert summary, gws[0].log()[-2000:]
     assert int(summary.group(1)) == len(auto)
     assert int(summary.group(2)) == 40, "both copies of each signed frame counted"
+
+    # The same figures on the status socket, in /metrics and in mavbondctl, while running.
+    shown = status["vehicle"]["renumber"]
+    assert shown["renumbered"] == len(auto) and shown["gaps"] == len(both)
+    assert shown["signed_left_alone"] == 40
+    for name, count in shown.items():
+        assert value(metrics, f"mavbond_renumber_{name}_total", bond="vehicle") == count, name
+    assert ctl.returncode == 0, ctl.stderr
+    assert (f"renumber vehicle: {len(auto)} frames renumbered, {len(both)} gaps (lost on every "
+            f"link)") in ctl.stdout, ctl.stdout
