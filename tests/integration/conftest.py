@@ -127,3 +127,22 @@ def lab(mavbond_bin, tmp_path, plugin_dir):
         e.kill()
     for s in lab.socks:
         s.close()
+
+
+# A test marked flaky that failed and was rerun is listed by -rR with its name only; why it
+# failed is printed here, so a result that needed a rerun can be looked into.
+_rerun_reasons: list = []
+
+
+def pytest_runtest_logreport(report):
+    if report.outcome == "rerun":
+        crash = getattr(report.longrepr, "reprcrash", None)
+        why = crash.message if crash else str(report.longrepr).strip().splitlines()[-1:]
+        _rerun_reasons.append((report.nodeid, str(why).splitlines()[0][:300]))
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _rerun_reasons:
+        terminalreporter.section("why tests were rerun")
+        for nodeid, why in _rerun_reasons:
+            terminalreporter.write_line(f"{nodeid}: {why}")

@@ -126,6 +126,15 @@ def emu_proc():
         p.kill()
 
 
+def wait_counters(emu, ready, timeout=5.0):
+    """Waits until ready(emu.counters()) holds; fails with the counters after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while not ready(c := emu.counters()):
+        assert time.monotonic() < deadline, f"counters never got there: {c}"
+        time.sleep(0.005)
+    return c
+
+
 def pump(emu, a, b, n, payload=lambda i: HDR.pack(i, 0.0), batch=250, timeout=20.0):
     """Send n datagrams A->B through emu in batches (so no socket buffer overflows), wait for
     each batch to be fully handled, return what B received, in order."""
@@ -462,11 +471,12 @@ def test_replies_flow_back_and_directions_are_independent(emu_factory):
     b.sendto(b"early", src)
     stranger = udp()
     stranger.sendto(b"noise", src)
-    time.sleep(0.05)
+    # Each step waits until the emulator has handled the last (it may run late under load).
+    wait_counters(emu, lambda c: c["down"]["dropped_no_peer"] == 1 and c["down"]["foreign"] == 1)
     # A's datagrams are all lost on the way up (up_loss 100%), but A is now known
     for i in range(20):
         a.sendto(b"up%d" % i, emu.listen_addr)
-    time.sleep(0.05)
+    wait_counters(emu, lambda c: c["up"]["received"] == 20)
     b.sendto(b"reply", src)
     t = time.monotonic()
     data, addr = a.recvfrom(100)
