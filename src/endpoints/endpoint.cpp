@@ -133,8 +133,12 @@ void Endpoint::finish(TimePoint deadline) {
     flush();
     while (tx_.mid_frame() && wait_writable(deadline))
         flush();
+    // A peer that took only part of a frame gets the rest of the stream as it is: every whole
+    // frame the kernel holds for it still arrives, then the cut frame (counted as dropped),
+    // which a MAVLink parser discards. A reset instead would lose all of those frames.
     if (tx_.mid_frame())
-        abort_mid_frame();
+        log_warning("[%s] the peer took only part of a frame before the stop: its stream ends "
+                    "with a cut frame", name().c_str());
     clear_tx();
 }
 

@@ -111,9 +111,10 @@ public:
     /// not); true without one. The router asks before the frame can teach a route.
     bool authentic(const Frame& frame) { return !verifier_ || check_signature(frame); }
 
-    /// The daemon stops: what is queued is written if the peer takes it now, a frame left half
-    /// written on a stream is completed (waiting for the peer until `deadline`), and the rest
-    /// is counted as dropped, so the final counters account for every frame.
+    /// The endpoint stops (the daemon exits, or a reload removes it): what is queued is written
+    /// if the peer takes it now, a frame left half written on a stream is completed (waiting
+    /// for the peer until `deadline`), and the rest is counted as dropped, so the final
+    /// counters account for every frame.
     virtual void finish(TimePoint deadline);
 
     /// Counters of this endpoint alone.
@@ -132,8 +133,6 @@ protected:
     virtual void on_write_error(int err) { (void)err; }
     /// Stream endpoints: waits a moment for the peer to take more; false once `deadline` passed.
     virtual bool wait_writable(TimePoint deadline) { (void)deadline; return false; }
-    /// Stream endpoints: the peer must not take a half frame for the end of the stream.
-    virtual void abort_mid_frame() {}
 
     /// Drops everything queued (reconnects start at a frame boundary), counting it.
     void clear_tx();

@@ -81,15 +81,6 @@ bool StreamEndpoint::wait_writable(TimePoint deadline) {
     return true;
 }
 
-void StreamEndpoint::abort_mid_frame() {
-    // The peer did not take the rest of the frame in time. A TCP peer gets a reset (an error)
-    // rather than a clean end of stream after half a frame; a UART has no such signal.
-    linger reset{1, 0};
-    if (fd_ && setsockopt(fd_.get(), SOL_SOCKET, SO_LINGER, &reset, sizeof reset) == 0)
-        log_warning("[%s] the peer took only part of a frame before the stop: connection reset",
-                    name().c_str());
-}
-
 void StreamEndpoint::on_events(uint32_t events) {
     if (events & EPOLLOUT)
         flush();

@@ -44,7 +44,6 @@ protected:
     void on_backlog(bool backlog) override;
     void on_write_error(int err) override;
     bool wait_writable(TimePoint deadline) override;
-    void abort_mid_frame() override;
 
     EventLoop& loop_;
     Router& router_;

@@ -12,8 +12,15 @@
 namespace mavbond {
 namespace {
 
-std::string counters_line(const Endpoint& e) {
-    std::string line = "stats endpoint=" + e.name() + " kind=" + e.kind();
+// How long an endpoint that stops may wait for its peer to take a frame it half wrote: at
+// exit, and (shorter: the loop keeps routing) when a reload removes or changes it.
+constexpr Duration kExitFinishBound = milliseconds(500);
+constexpr Duration kReloadFinishBound = milliseconds(50);
+
+/// "WHAT endpoint=NAME kind=KIND counter=value..." (WHAT: "stats" for the periodic and exit
+/// lines, which tools parse).
+std::string counters_line(const Endpoint& e, const char* what = "stats") {
+    std::string line = std::string(what) + " endpoint=" + e.name() + " kind=" + e.kind();
     for_each_counter(e.total_stats(), [&line](const char* name, uint64_t value) {
         line += std::string(" ") + name + "=" + std::to_string(value);
     });
@@ -177,7 +184,7 @@ int Daemon::run() {
     // What is still queued goes out if the peers take it now, a frame half written on a
     // stream is completed (a peer never sees half a frame), the rest is counted as dropped:
     // the final counters account for every frame. Bounded: a stalled peer cannot hold the stop.
-    TimePoint finish_by = Clock::now() + milliseconds(500);
+    TimePoint finish_by = Clock::now() + kExitFinishBound;
     for (const auto& e : endpoints_)
         e->finish(finish_by);
     dump_counters();
@@ -263,10 +270,16 @@ bool Daemon::reload() {
     };
     std::map<std::string, Endpoint::Ptr> kept;
     size_t stopped = 0;
+    // A stopped endpoint's queue goes out if its peer takes it at once (a frame half written
+    // on a stream is completed, within a bound); the rest is counted as dropped, and its last
+    // counters are logged: no frame leaves unaccounted.
+    const TimePoint finish_by = Clock::now() + kReloadFinishBound;
     for (auto& e : endpoints_) {
         if (unchanged(*e)) {
             kept[e->config().name] = std::move(e);
         } else {
+            e->finish(finish_by);
+            log_notice("reload: %s", counters_line(*e, "stopped").c_str());
             report_.forget(*e);
             e.reset();  // closes its sockets before a replacement binds the same address
             stopped++;

@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import signal
 import socket
 import threading
 import time
 from typing import List, Tuple
 
-from helpers import (HOST, FrameMaker, corrupt_crc, drain, free_port, recv_datagrams, rss_kib,
-                     rss_means_memory, split_stream, tcp_server, tlog, udp_client, udp_server,
-                     udp_socket)
+from helpers import (HOST, FrameMaker, corrupt_crc, drain, free_port, make_config, recv_datagrams,
+                     rss_kib, rss_means_memory, split_stream, tcp_server, tlog, udp_client,
+                     udp_server, udp_socket)
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -181,6 +182,57 @@ def test_tcp_client_that_never_reads(start_daemon):
         assert st["tx_dropped"] == dropped
         assert st["tx_frames"] == expect == len(frames) and rest == 0
         assert is_subsequence(frames, sent), "what it got is whole frames, in the order sent"
+    finally:
+        stuck.close()
+        src.close()
+        sink.close()
+    assert d.stop() == 0
+
+
+def test_reload_that_removes_a_stuck_tcp_endpoint_accounts_for_its_queue(start_daemon):
+    """A reload removes a TCP endpoint whose client never read: what it still queued goes out
+    if the client takes it, the rest is counted as dropped, and its last counters are logged,
+    so every frame routed to it is accounted for. The other endpoints route on."""
+    in_port, out_port, tcp_port = free_port(), free_port(), free_port(socket.SOCK_STREAM)
+    sink = udp_socket(out_port)
+    kept = [udp_server("in", in_port), udp_client("out", out_port)]
+    d = start_daemon(kept + [tcp_server("t", tcp_port, tx_queue="16k")])
+    stuck = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    stuck.connect((HOST, tcp_port))
+    src = udp_socket()
+    sent: List[bytes] = []
+
+    def send_block(seed):
+        block = big_frames(400, seed=seed)
+        got = send_lockstep_datagrams(src, (HOST, in_port), pack_datagrams(block, 4), sink, 4)
+        assert got == block, "the UDP sink must lose nothing"
+        return block
+
+    try:
+        d.wait_log(r"\[tcp:t\] client .* connected")
+        while d.stats()["t"]["tx_dropped"] == 0:  # the kernel's buffers and the queue are full
+            assert len(sent) * 266 < 40e6, "40 MB went to a client that reads nothing"
+            sent += send_block(len(sent))
+        d.config_path.write_text(make_config(kept))
+        d.proc.send_signal(signal.SIGHUP)
+        log = d.wait_log(r"reloaded: ")
+        assert "reloaded: 2 endpoints kept, 1 stopped, 0 started; filters kept" in log
+        m = re.search(r"reload: stopped endpoint=t kind=tcp-server .*\btx_frames=(\d+) .*"
+                      r"\btx_dropped=(\d+)", log)
+        assert m, log[-3000:]
+        tx_frames, tx_dropped = int(m.group(1)), int(m.group(2))
+        data = read_until(stuck, 1 << 30, timeout=10)  # to the end of the stream
+        frames, rest = whole_frames(data)
+        cut = "took only part of a frame" in log
+        print(f"\n{len(sent)} frames routed to the stuck client; at the reload: tx_frames "
+              f"{tx_frames}, tx_dropped {tx_dropped}; it then read {len(frames)} whole frames"
+              f" and {rest} bytes of a cut frame")
+        assert tx_frames + tx_dropped == len(sent), "every frame routed to it is accounted for"
+        assert len(frames) == tx_frames, "every frame counted as sent arrives"
+        assert is_subsequence(frames, sent), "whole frames, in the order sent"
+        assert (rest > 0) == cut, "a cut frame at the end of the stream is logged"
+        send_block(99)  # the kept endpoints route on
     finally:
         stuck.close()
         src.close()
