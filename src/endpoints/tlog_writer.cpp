@@ -44,7 +44,8 @@ TlogWriter::TlogWriter(std::string log_name, std::string directory, uint64_t max
     record_.resize(RecordRing::kMaxRecord);
     open_next_file();
     // Signals are the loop's (signalfd): the thread starts with all of them blocked, or one
-    // not blocked yet (SIGUSR1) would be delivered to it and kill the daemon.
+    // not blocked yet (SIGUSR1) would be delivered to it and kill the daemon. SIGXFSZ too: a
+    // file size limit is then a write error (EFBIG), handled like a full disk.
     sigset_t all, old;
     sigfillset(&all);
     pthread_sigmask(SIG_BLOCK, &all, &old);
@@ -220,12 +221,24 @@ void TlogWriter::write_out() {
     }
     write_errors_++;
     set_failing("cannot write " + path_ + ": " + errno_text(err));
-    // Take back a partly written record, so the file stays a sequence of whole records.
-    uint64_t committed = file_bytes_ - out_.size();
-    if (ftruncate(fd_.get(), static_cast<off_t>(committed)) == 0)
+    // The whole records that reached the disk stay (a nearly full disk takes some); a cut one
+    // is taken back, so the file stays a sequence of whole records; the rest is lost, counted.
+    const size_t written = out_.size() - left;
+    size_t kept = 0;
+    while (kept + kTimestampBytes + 3 <= written) {
+        const size_t frame_len = frame_length(out_.data() + kept + kTimestampBytes);
+        if (kept + kTimestampBytes + frame_len > written)
+            break;
+        kept += kTimestampBytes + frame_len;
+        file_frames_++;
+        out_frames_--;
+        out_frame_bytes_ -= frame_len;
+    }
+    const uint64_t committed = file_bytes_ - out_.size() + kept;
+    if (written == kept || ftruncate(fd_.get(), static_cast<off_t>(committed)) == 0)
         file_bytes_ = committed;
     else
-        file_bytes_ = committed + (out_.size() - left);
+        file_bytes_ = committed + (written - kept);
     lose_pending();
 }
 

@@ -17,6 +17,14 @@ constexpr size_t kChecksumLen = 2;
 constexpr size_t kSignatureLen = 13;
 constexpr size_t kMaxFrameLen = kHeaderLenV2 + 255 + kChecksumLen + kSignatureLen;  // 280
 
+/// The length on the wire of the frame whose first bytes are at `p` (magic, payload length,
+/// and for MAVLink 2 the incompatibility flags: 3 bytes are read).
+constexpr size_t frame_length(const uint8_t* p) {
+    if (p[0] == kMagicV2)
+        return kHeaderLenV2 + p[1] + kChecksumLen + ((p[2] & kIncompatSigned) ? kSignatureLen : 0);
+    return kHeaderLenV1 + p[1] + kChecksumLen;
+}
+
 struct Frame {
     std::span<const uint8_t> bytes;    // the whole frame as on the wire, signature included
     std::span<const uint8_t> payload;  // the payload as on the wire (v2: possibly truncated)

@@ -97,8 +97,7 @@ Candidate examine(const uint8_t* p, size_t avail) {
         const MessageInfo* info = find_message(msgid);
         if (info != nullptr && payload_len > info->max_len)
             return {Verdict::BadLength, 0, info};
-        const size_t len = kHeaderLenV2 + payload_len + kChecksumLen +
-                           ((p[2] & kIncompatSigned) != 0 ? kSignatureLen : 0);
+        const size_t len = frame_length(p);
         if (avail < len)
             return {Verdict::NeedMore, len, info};
         if (info == nullptr)

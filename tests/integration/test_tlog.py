@@ -4,6 +4,7 @@ an autopilot reboot; a directory that cannot be written costs the log, never the
 from __future__ import annotations
 
 import re
+import resource
 import shutil
 import time
 from pathlib import Path
@@ -237,3 +238,58 @@ def test_directory_removed_while_running(start_daemon, tmp_path):
     assert d.stop() == 0
     assert not logdir.exists(), "a vanished directory is not silently recreated"
 
+
+
+def test_write_errors_then_writing_again(start_daemon, tmp_path):
+    """The disk refuses writes mid-flight, then takes them again. The refusal is a file size
+    limit put on the running daemon (RLIMIT_FSIZE through prlimit: EFBIG, and SIGXFSZ, which
+    must not kill it), the same write-error path as a full disk (ENOSPC) without needing to
+    mount one. One log line per change of state; the lost frames are counted; routing goes on;
+    the file stays whole records (pymavlink reads every one) and holds exactly the frames
+    counted as written, the ones after the recovery included."""
+    logdir = tmp_path / "logs"
+    gcs_port, veh_port = free_port(), free_port()
+    d = start_daemon([udp_server("gcs", gcs_port), udp_server("veh", veh_port),
+                      tlog("flightlog", logdir)])
+    pid = d.proc.pid
+    limit = 16 * 1024
+    vehicle, gcs = Link(veh_port), Link(gcs_port)
+    vm = FrameMaker(1, 1)
+    try:
+        hello = FrameMaker(255, 190).heartbeat(6)
+        gcs.send(hello)
+        d.wait_log(r"new peer")
+        d.wait_log(r"\[tlog:flightlog\] writing ")
+        resource.prlimit(pid, resource.RLIMIT_FSIZE, (limit, resource.RLIM_INFINITY))
+        refused = vm.telemetry(1000)  # about 50 kB of records: the limit is hit on the way
+        exchange(vehicle, gcs, refused)
+        text = d.wait_log(r"\[tlog:flightlog\] cannot write")
+        st = d.settle_stats(lambda s: s["flightlog"]["tx_dropped"], timeout=5)
+        assert st["flightlog"]["tx_dropped"] > 0 and st["flightlog"]["tx_errors"] >= 1
+        resource.prlimit(pid, resource.RLIMIT_FSIZE,
+                         (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
+        after = vm.telemetry(200)
+        exchange(vehicle, gcs, after)
+        d.wait_log(r"\[tlog:flightlog\] writing again")
+    finally:
+        vehicle.close()
+        gcs.close()
+    assert d.stop() == 0, "SIGXFSZ did not kill it"
+    final = d.final_stats()["flightlog"]
+    log = d.log()
+    print("\n" + next(l for l in text.splitlines() if "cannot write" in l))
+    files = tlog_files(logdir)
+    records = [f for path in files for _, f in read_tlog(path)]
+    print(f"flightlog: {final}; {len(files)} file(s), {sum(p.stat().st_size for p in files)} "
+          f"bytes, {len(records)} records")
+    # and the GCS heartbeat that made the vehicle routable
+    assert final["tx_frames"] + final["tx_dropped"] == len(refused) + len(after) + 1
+    assert len(records) == final["tx_frames"], "the file holds exactly the frames counted"
+    assert records[-len(after):] == after, "the frames after the recovery are all there"
+    # The whole records that fitted under the limit stayed, in order (a cut one went).
+    before = records[:-len(after)]
+    routed = iter([hello] + refused)
+    assert before and all(any(r == f for f in routed) for r in before)
+    assert len(re.findall(r"\[tlog:flightlog\] cannot write", log)) == 1
+    assert len(re.findall(r"\[tlog:flightlog\] writing again", log)) == 1
+    assert d.final_stats()["gcs"]["tx_frames"] == len(refused) + len(after)
