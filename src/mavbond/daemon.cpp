@@ -38,6 +38,13 @@ std::vector<std::pair<std::string, std::string>> bond_members(const Config& c) {
     return out;
 }
 
+/// Whether the filters must restart: anything they depend on changed (their entries, the
+/// bonds, the order of the bonds' links, the plugin directory).
+bool filters_must_restart(const Config& old, const Config& next) {
+    return !same_settings(old.bonds, next.bonds) || !same_settings(old.filters, next.filters) ||
+           bond_members(old) != bond_members(next) || old.plugin_dir != next.plugin_dir;
+}
+
 const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
     for (const auto& ep : c.endpoints) {
         if (ep.name == name)
@@ -117,9 +124,7 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
     auto chain = FilterChain::create(*d->config_, d->config_->plugin_dir, loop, d->router_);
     if (!chain)
         return StartError{kExitConfig, chain.error().message};
-    d->chain_ = std::move(chain.value());
-    d->renumber_ = std::make_unique<RenumberStage>(*d->chain_, d->router_, d->config_->bonds);
-    d->router_.set_filter(d->data_path());
+    d->install_filters(std::move(chain.value()), d->config_->bonds);
     return d;
 }
 
@@ -241,17 +246,12 @@ bool Daemon::reload() {
         return false;
     }
     std::unique_ptr<Config> next = std::move(loaded.value());
-    Config& old = *config_;
 
-    // The filters restart when anything they depend on changed: their entries, the bonds, the
-    // order of the bonds' links, the plugin directory. The new chain is built before anything
-    // is touched, so a plugin that will not load refuses the whole reload.
-    bool bonds_changed = !same_settings(old.bonds, next->bonds);
-    bool chain_changed = bonds_changed || !same_settings(old.filters, next->filters) ||
-                         bond_members(old) != bond_members(*next) ||
-                         old.plugin_dir != next->plugin_dir;
+    // The new chain is built before anything is touched, so a plugin that will not load
+    // refuses the whole reload.
+    const bool filters_restart = filters_must_restart(*config_, *next);
     std::unique_ptr<FilterChain> next_chain;
-    if (chain_changed) {
+    if (filters_restart) {
         auto chain = FilterChain::create(*next, next->plugin_dir, loop_, router_);
         if (!chain) {
             log_error("reload refused, the running configuration stays: %s",
@@ -260,51 +260,67 @@ bool Daemon::reload() {
         }
         next_chain = std::move(chain.value());
     }
-    link_events_.reset();  // it watches the endpoints about to change
 
-    // An endpoint keeps running when its declaration means the same as before.
-    auto unchanged = [&](const Endpoint& e) {
-        const EndpointConfig* now = find_endpoint(*next, e.config().name);
-        return now && same_settings(*now, e.config()) &&
-               old.unknown_messages == next->unknown_messages;
-    };
-    std::map<std::string, Endpoint::Ptr> kept;
-    size_t stopped = 0;
-    // A stopped endpoint's queue goes out if its peer takes it at once (a frame half written
-    // on a stream is completed, within a bound); the rest is counted as dropped, and its last
-    // counters are logged: no frame leaves unaccounted.
+    link_events_.reset();  // it watches the endpoints about to change
+    const size_t running = endpoints_.size();
+    std::map<std::string, Endpoint::Ptr> kept = stop_changed_endpoints(*next);
+    const size_t kept_count = kept.size();
+    if (next_chain)
+        install_filters(std::move(next_chain), next->bonds);  // hears of every endpoint kept
+    router_.set_route_timeout(next->route_timeout);
+    const auto [started, failed] = start_endpoints(*next, kept);
+    apply_settings(std::move(next));
+    log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
+               kept_count, running - kept_count, started,
+               failed ? (", " + std::to_string(failed) + " failed").c_str() : "",
+               filters_restart ? "restarted" : "kept");
+    return true;
+}
+
+void Daemon::install_filters(std::unique_ptr<FilterChain> chain,
+                             const std::vector<BondConfig>& bonds) {
+    router_.set_filter(nullptr);
+    if (renumber_)
+        renumber_->log_summary();
+    renumber_.reset();
+    chain_ = std::move(chain);
+    renumber_ = std::make_unique<RenumberStage>(*chain_, router_, bonds);
+    router_.replace_bonds(bonds);
+    router_.set_filter(data_path());
+}
+
+std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config& next) {
+    // An endpoint keeps running when its declaration means the same as before. One that
+    // stops writes its queue if its peer takes it at once (a frame half written on a stream
+    // is completed, within a bound), the rest is counted as dropped, and its last counters
+    // are logged: no frame leaves unaccounted.
     const TimePoint finish_by = Clock::now() + kReloadFinishBound;
+    std::map<std::string, Endpoint::Ptr> kept;
     for (auto& e : endpoints_) {
-        if (unchanged(*e)) {
+        const EndpointConfig* now = find_endpoint(next, e->config().name);
+        if (now && same_settings(*now, e->config()) &&
+            config_->unknown_messages == next.unknown_messages) {
             kept[e->config().name] = std::move(e);
-        } else {
-            e->finish(finish_by);
-            log_notice("reload: %s", counters_line(*e, "stopped").c_str());
-            report_.forget(*e);
-            e.reset();  // closes its sockets before a replacement binds the same address
-            stopped++;
+            continue;
         }
+        e->finish(finish_by);
+        log_notice("reload: %s", counters_line(*e, "stopped").c_str());
+        report_.forget(*e);
+        e.reset();  // closes its sockets before a replacement binds the same address
     }
     endpoints_.clear();
+    return kept;
+}
 
-    if (next_chain) {
-        router_.set_filter(nullptr);
-        renumber_->log_summary();
-        renumber_.reset();
-        chain_ = std::move(next_chain);
-        renumber_ = std::make_unique<RenumberStage>(*chain_, router_, next->bonds);
-        router_.replace_bonds(next->bonds);
-        router_.set_filter(data_path());  // the new chain hears of every endpoint kept
-    }
-    router_.set_route_timeout(next->route_timeout);
-
+std::pair<size_t, size_t> Daemon::start_endpoints(const Config& next,
+                                                  std::map<std::string, Endpoint::Ptr>& kept) {
     size_t started = 0, failed = 0;
-    for (const auto& ep : next->endpoints) {
+    for (const auto& ep : next.endpoints) {
         if (auto k = kept.find(ep.name); k != kept.end()) {
             endpoints_.push_back(std::move(k->second));
             continue;
         }
-        auto e = make_endpoint(ep, *next, loop_, router_);
+        auto e = make_endpoint(ep, next, loop_, router_);
         if (!e) {
             // The rest of the new config stands; this endpoint is reported and left out.
             log_error("reload: endpoint '%s': %s", ep.name.c_str(), e.error().message.c_str());
@@ -314,10 +330,13 @@ bool Daemon::reload() {
         endpoints_.push_back(std::move(e.value()));
         started++;
     }
+    return {started, failed};
+}
 
-    bool status_moved = old.status_socket != next->status_socket;
-    bool metrics_moved = !(old.metrics == next->metrics);
-    bool identity_changed = !(old.identity == next->identity);
+void Daemon::apply_settings(std::unique_ptr<Config> next) {
+    const bool status_moved = config_->status_socket != next->status_socket;
+    const bool metrics_moved = !(config_->metrics == next->metrics);
+    const bool identity_changed = !(config_->identity == next->identity);
     config_ = std::move(next);
     log_set_level(config_->log_level);
     start_local_source(identity_changed);
@@ -325,11 +344,6 @@ bool Daemon::reload() {
         open_status_socket();
     if (metrics_moved)
         open_metrics();
-    log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
-               kept.size(), stopped, started,
-               failed ? (", " + std::to_string(failed) + " failed").c_str() : "",
-               chain_changed ? "restarted" : "kept");
-    return true;
 }
 
 std::string Daemon::status_document() const {

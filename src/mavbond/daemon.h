@@ -7,6 +7,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -82,6 +83,16 @@ private:
     static Result<std::unique_ptr<Config>> load(const DaemonOptions& opts);
     /// The chain, seen through the renumbering stage when a bond renumbers.
     FrameFilter* data_path() const;
+    /// Puts a filter chain (and the renumbering for `bonds`) on the router's path, in place
+    /// of the one before it.
+    void install_filters(std::unique_ptr<FilterChain> chain, const std::vector<BondConfig>& bonds);
+    // The steps of reload(), in order: the endpoints whose declaration changed stop (the
+    // others are returned, running); the new config's endpoints start, kept ones in their
+    // place (returns how many started, how many could not); the global settings apply.
+    std::map<std::string, Endpoint::Ptr> stop_changed_endpoints(const Config& next);
+    std::pair<size_t, size_t> start_endpoints(const Config& next,
+                                              std::map<std::string, Endpoint::Ptr>& kept);
+    void apply_settings(std::unique_ptr<Config> next);
     /// mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
     void start_local_source(bool identity_changed);
     void open_status_socket();
