@@ -187,8 +187,8 @@ int Daemon::run() {
     int code = loop_.run();
     router_.set_filter(nullptr);  // see ~Daemon
     // What is still queued goes out if the peers take it now, a frame half written on a
-    // stream is completed (a peer never sees half a frame), the rest is counted as dropped:
-    // the final counters account for every frame. Bounded: a stalled peer cannot hold the stop.
+    // stream is completed, the rest is counted as dropped: the final counters account for
+    // every frame. Bounded: a stalled peer cannot hold the stop (its stream ends cut, logged).
     TimePoint finish_by = Clock::now() + kExitFinishBound;
     for (const auto& e : endpoints_)
         e->finish(finish_by);
