@@ -136,9 +136,10 @@ _rerun_reasons: list = []
 
 def pytest_runtest_logreport(report):
     if report.outcome == "rerun":
+        # The assertion's message when pytest has one, else the last line of the report.
         crash = getattr(report.longrepr, "reprcrash", None)
-        why = crash.message if crash else str(report.longrepr).strip().splitlines()[-1:]
-        _rerun_reasons.append((report.nodeid, str(why).splitlines()[0][:300]))
+        lines = (crash.message if crash else str(report.longrepr)).strip().splitlines() or ["?"]
+        _rerun_reasons.append((report.nodeid, (lines[0] if crash else lines[-1])[:300]))
 
 
 def pytest_terminal_summary(terminalreporter):
