@@ -20,7 +20,8 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change; the host accepts exactly its own version. */
-#define MAVBOND_PLUGIN_ABI_VERSION 2u  /* 2: the metrics hook */
+#define MAVBOND_PLUGIN_ABI_VERSION 3u  /* 2: the metrics hook; 3: stream positions, arrival
+                                          * times, bond positions, bond members */
 #define MAVBOND_PLUGIN_ENTRY_SYMBOL "mavbond_plugin_entry"
 
 #define MAVBOND_EXPORT __attribute__((visibility("default")))
@@ -57,8 +58,29 @@ typedef struct mavbond_frame {
     int16_t timestamp_offset; /* wire offset of time_boot_ms / time_usec in the payload, -1: none */
     uint8_t timestamp_size;   /* its size in bytes, 4 or 8; 0: none */
     uint8_t timestamp_us;     /* 1: microseconds (time_usec), 0: milliseconds (time_boot_ms) */
-    uint64_t rx_time_ns;      /* CLOCK_MONOTONIC, read once per receive batch */
+    /* When the frame arrived, CLOCK_MONOTONIC: the kernel's receive time of its datagram (UDP),
+     * the time of the read that completed it (UART, TCP). Never when the loop got to it: the
+     * frames of a bond's links reach the filters in this order, a stalled daemon included. */
+    uint64_t rx_time_ns;
+    /* ABI 3: the frame's place in its source's (sysid, compid) stream on the link it came
+     * from, as the host tracks it for every link: the sequence byte unwrapped (the first frame
+     * of a source is at its seq, 0..255; a step of 1..127 forward moves on, a step back is a
+     * late frame). Links number their copies each their own way: positions of two links are
+     * comparable only once aligned (dedup does, and notes the bond's numbering). */
+    int64_t stream_pos;
+    int32_t stream_lost;      /* frames of the source this link skipped before this one (a gap);
+                               * -1: this late frame fills a gap counted before; 0 otherwise */
+    uint32_t stream_flags;    /* MAVBOND_STREAM_* */
 } mavbond_frame;
+
+/* stream_flags */
+#define MAVBOND_STREAM_REPEAT 0x1u    /* a position this link already had (or too far back to
+                                       * tell): not a new frame of the source on this link */
+#define MAVBOND_STREAM_RESYNC 0x2u    /* the numbering restarted here (a run of frames that fit
+                                       * no gap: a rebooted sender): positions before and after
+                                       * are not comparable */
+#define MAVBOND_STREAM_UNTRACKED 0x4u /* more sources than the host tracks on this link:
+                                       * stream_pos is the bare sequence byte */
 
 /* Filled by filters for the ones after them in the chain (one per frame, zeroed at ingress). */
 typedef struct mavbond_frame_notes {
@@ -67,6 +89,9 @@ typedef struct mavbond_frame_notes {
     uint64_t hash[2];         /* the frame's key hash, when MAVBOND_NOTE_HASHED */
     uint32_t first_link_id;   /* MAVBOND_NOTE_DUPLICATE: the link the first copy came on */
     int64_t skew_ns;          /* MAVBOND_NOTE_DUPLICATE: this copy's arrival minus the first's */
+    int64_t bond_pos;         /* MAVBOND_NOTE_POSITION (ABI 3): the frame's position in its
+                               * source's stream as the bond numbers it, every link aligned
+                               * to one numbering (copies of one frame share it) */
 } mavbond_frame_notes;
 
 #define MAVBOND_NOTE_HASHED 0x1u
@@ -77,6 +102,7 @@ typedef struct mavbond_frame_notes {
  * (dedup) must not learn from it, so a frame dropped for another reason never shadows its
  * good copy. */
 #define MAVBOND_NOTE_DROPPED 0x8u
+#define MAVBOND_NOTE_POSITION 0x10u /* bond_pos is set */
 
 #define MAVBOND_NO_BOND UINT32_MAX
 
@@ -171,7 +197,9 @@ typedef struct mavbond_host_api {
     uint32_t struct_size;
     /* Logs one line, prefixed by the host with "[filter:NAME]". */
     void (*log)(mavbond_host *h, mavbond_log_level level, const char *message);
-    /* The monotonic clock in nanoseconds (cached per loop round). */
+    /* The monotonic clock in nanoseconds, as far as arrivals go: every frame that arrived
+     * before it has been shown to the filters (cached per loop round; after a stall it trails
+     * the wall while the backlog is worked off, so a timer never takes a stall for silence). */
     uint64_t (*now_ns)(mavbond_host *h);
     /* Calls cb(user) every period_ns until it returns 0 or the timer is cancelled.
      * Returns 0 and a timer id, or -errno. */
@@ -204,6 +232,14 @@ typedef struct mavbond_host_api {
     /* The bonds (names) and endpoints (names) this instance is scoped to; NULL/0: everywhere. */
     void (*scope)(const mavbond_config *c, const char *const **bonds, size_t *bond_count,
                   const char *const **endpoints, size_t *endpoint_count);
+    /* ABI 3: the endpoints the config puts in bond `bond`, in config order (their links'
+     * priority), valid for the instance's life; -ENOENT when there is no such bond. For
+     * checking names in options at create, before any link exists. */
+    int (*cfg_bond_members)(const mavbond_config *c, const char *bond, const char *const **names,
+                            size_t *count);
+    /* ABI 3: as cfg_error, at item `index` of a list option (the item's own line:column). */
+    void (*cfg_item_error)(const mavbond_config *c, const char *key, size_t index,
+                           const char *message, char *err, size_t err_len);
 } mavbond_host_api;
 
 typedef struct mavbond_plugin_descriptor {

@@ -723,6 +723,7 @@ void Parser::parse_filter(const YAML::Node& node, size_t index) {
                                               "': items must be single values, not " +
                                               kind_name(item));
                     option.items.push_back(item.Scalar());
+                    option.item_marks.push_back(source_mark(item.Mark()));
                 }
                 option.value = "[";
                 for (size_t i = 0; i < option.items.size(); ++i)

@@ -108,6 +108,7 @@ struct FilterConfig {
         std::string key;
         std::string value;               // scalar text, or a flow-style sequence "[a, b]"
         std::vector<std::string> items;  // sequence items when the value is a sequence
+        std::vector<SourceMark> item_marks;  // where each item is
         bool is_sequence = false;
         SourceMark mark;                 // the key
         SourceMark value_mark;           // the value (the key's mark when the value is empty)

@@ -65,7 +65,7 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
             chain->plugins_.push_back(std::move(loaded.value()));
             plugin = chain->plugins_.back().get();
         }
-        auto pc = PluginConfig::create(entry, plugin->descriptor().options);
+        auto pc = PluginConfig::create(entry, plugin->descriptor().options, config);
         if (!pc)
             return pc.error();
         auto inst = std::make_unique<Instance>();
@@ -130,6 +130,7 @@ void FilterChain::on_endpoint(Endpoint& endpoint, bool added) {
         // Priority: the place among the bond's members in the config (peers share theirs).
         auto p = priority_.find(endpoint.config().name);
         v.link.priority = p == priority_.end() ? 0 : p->second;
+        v.positions.clear();
         v.scope_mask = 0;
         for (size_t i = 0; i < instances_.size(); i++) {
             if (in_scope(*instances_[i], endpoint))
@@ -174,12 +175,16 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
 }
 
 FrameFilter::Verdict FilterChain::on_ingress(const Frame& frame, Endpoint& from, TimePoint now) {
-    const LinkView& v = links_[from.id()];
+    LinkView& v = links_[from.id()];
     notes_ = mavbond_frame_notes{};
     notes_.struct_size = sizeof notes_;
     if (v.scope_mask == 0)
         return Verdict::Pass;
     mavbond_frame f = to_c_frame(frame, now);
+    StreamStep step = v.positions.track(frame.sysid, frame.compid, frame.seq);
+    f.stream_pos = step.pos;
+    f.stream_lost = step.lost;
+    f.stream_flags = step.flags;
     mavbond_frame_notes& notes = notes_;
     for (size_t i = 0; i < instances_.size(); i++) {
         if (!(v.scope_mask >> i & 1))

@@ -16,6 +16,7 @@
 #include "core/router.h"
 #include "filters/plugin_host.h"
 #include "filters/plugin_loader.h"
+#include "filters/stream_positions.h"
 
 namespace mavbond {
 
@@ -50,6 +51,7 @@ private:
         std::string name;
         Endpoint* endpoint = nullptr;
         uint64_t scope_mask = 0;  // bit i: instance i applies to this link
+        StreamPositions positions;  // of the sources heard on this link
     };
     FilterChain(EventLoop& loop, Router& router);
     bool in_scope(const Instance& inst, const Endpoint& endpoint) const;

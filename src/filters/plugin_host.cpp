@@ -82,7 +82,8 @@ bool convert(mavbond_option_type type, const std::string& text, const std::vecto
 }  // namespace
 
 Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& entry,
-                                                           const mavbond_option* declared) {
+                                                           const mavbond_option* declared,
+                                                           const Config& config) {
     std::unique_ptr<PluginConfig> cfg(new PluginConfig(entry));
     auto find_declared = [declared](const std::string& key) -> const mavbond_option* {
         for (const mavbond_option* o = declared; o && o->key; o++) {
@@ -102,6 +103,7 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
         }
         OptionValue v;
         v.mark = opt.value_mark;
+        v.item_marks = opt.item_marks;
         if (!convert(d->type, opt.value, opt.items, opt.is_sequence, v))
             return make_error(where(opt.value_mark) + ": filter '" + entry.plugin + "': option '" +
                               opt.key + "' must be " + type_name(d->type) + ", not '" + opt.value + "'");
@@ -126,6 +128,17 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
         cfg->bond_ptrs_.push_back(b.c_str());
     for (const auto& e : entry.endpoints)
         cfg->endpoint_ptrs_.push_back(e.c_str());
+    for (const auto& b : config.bonds)
+        cfg->members_[b.name];
+    for (const auto& ep : config.endpoints) {
+        if (auto it = cfg->members_.find(ep.bond); it != cfg->members_.end())
+            it->second.push_back(ep.name);
+    }
+    for (const auto& [bond, names] : cfg->members_) {
+        auto& ptrs = cfg->member_ptrs_[bond];
+        for (const auto& n : names)
+            ptrs.push_back(n.c_str());
+    }
     return cfg;
 }
 
@@ -138,6 +151,20 @@ std::string PluginConfig::error_at(const char* key, const std::string& message) 
     const OptionValue* v = find(key);
     return where(v ? v->mark : entry_.mark) + ": filter '" + entry_.plugin + "': option '" + key +
            "': " + message;
+}
+
+std::string PluginConfig::item_error_at(const char* key, size_t index,
+                                       const std::string& message) const {
+    const OptionValue* v = find(key);
+    if (!v || index >= v->item_marks.size())
+        return error_at(key, message);
+    return where(v->item_marks[index]) + ": filter '" + entry_.plugin + "': option '" + key +
+           "': " + message;
+}
+
+const std::vector<const char*>* PluginConfig::bond_members(const char* bond) const {
+    auto it = member_ptrs_.find(std::string_view(bond));
+    return it == member_ptrs_.end() ? nullptr : &it->second;
 }
 
 // --- the function table --------------------------------------------------------------------
@@ -228,6 +255,23 @@ struct HostApiImpl {
         *endpoints = p.endpoint_ptrs_.empty() ? nullptr : p.endpoint_ptrs_.data();
         *endpoint_count = p.endpoint_ptrs_.size();
     }
+    static int cfg_bond_members(const mavbond_config* c, const char* bond, const char* const** names,
+                                size_t* count) {
+        const std::vector<const char*>* members = bond ? c->config->bond_members(bond) : nullptr;
+        if (!members)
+            return -ENOENT;
+        *names = members->data();
+        *count = members->size();
+        return 0;
+    }
+    static void cfg_item_error(const mavbond_config* c, const char* key, size_t index,
+                               const char* message, char* err, size_t err_len) {
+        if (!err || err_len == 0)
+            return;
+        std::string text = c->config->item_error_at(key ? key : "?", index, message ? message : "");
+        c->config->option_refused_ = true;
+        snprintf(err, err_len, "%s", text.c_str());
+    }
 };
 
 const mavbond_host_api* host_api() {
@@ -238,7 +282,7 @@ const mavbond_host_api* host_api() {
         HostApiImpl::bond_state,   HostApiImpl::cfg_bool,
         HostApiImpl::cfg_int,      HostApiImpl::cfg_duration_ns, HostApiImpl::cfg_percent,
         HostApiImpl::cfg_string,   HostApiImpl::cfg_strings,   HostApiImpl::cfg_error,
-        HostApiImpl::scope,
+        HostApiImpl::scope,        HostApiImpl::cfg_bond_members, HostApiImpl::cfg_item_error,
     };
     return &api;
 }

@@ -43,18 +43,25 @@ struct OptionValue {
     std::vector<std::string> items;
     std::vector<const char*> item_ptrs;  // C view of items
     SourceMark mark;
+    std::vector<SourceMark> item_marks;
 };
 
 /// A filter entry's options, checked against the plugin's option table: unknown keys and
 /// values of the wrong type are errors naming file:line:column; defaults are filled in.
 class PluginConfig {
 public:
+    /// `config` gives the bonds' members (cfg_bond_members); it may go away after create.
     static Result<std::unique_ptr<PluginConfig>> create(const FilterConfig& entry,
-                                                        const mavbond_option* declared);
+                                                        const mavbond_option* declared,
+                                                        const Config& config);
     const OptionValue* find(const char* key) const;
     const FilterConfig& entry() const { return entry_; }
     /// "file:line:column: filter 'NAME': option 'KEY': message" (the entry's mark if absent).
     std::string error_at(const char* key, const std::string& message) const;
+    /// The same at item `index` of a list option (the option's place when there is no such item).
+    std::string item_error_at(const char* key, size_t index, const std::string& message) const;
+    /// The endpoints of a bond, in config order; nullptr when the config has no such bond.
+    const std::vector<const char*>* bond_members(const char* bond) const;
     /// Whether the plugin refused an option through cfg_error (its message names the place).
     bool option_refused() const { return option_refused_; }
 
@@ -63,6 +70,8 @@ private:
     const FilterConfig& entry_;
     std::map<std::string, OptionValue, std::less<>> values_;
     std::vector<const char*> bond_ptrs_, endpoint_ptrs_;
+    std::map<std::string, std::vector<std::string>, std::less<>> members_;  // bond -> endpoints
+    std::map<std::string, std::vector<const char*>, std::less<>> member_ptrs_;
     mutable bool option_refused_ = false;  // set through the const view plugins get
     friend struct HostApiImpl;
 };

@@ -76,7 +76,7 @@ void* FakeHost::create(const mavbond_plugin_descriptor* plugin, const std::strin
         return nullptr;
     }
     config_ = std::make_unique<Config>(std::move(config.value()));
-    auto pc = PluginConfig::create(config_->filters.back(), plugin->options);
+    auto pc = PluginConfig::create(config_->filters.back(), plugin->options, *config_);
     if (!pc) {
         last_error_ = pc.error().message;
         return nullptr;
