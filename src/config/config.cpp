@@ -417,7 +417,7 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kKeys = {
         "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
         "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
-        "block_out", "bond", "signing", "directory", "max_size"};
+        "block_out", "bond", "signing", "directory", "max_size", "rx_buffer"};
     check_keys(view, ctx, &kKeys);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
@@ -454,8 +454,8 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     std::set<std::string_view> by_type;  // keys the type takes in some mode
     switch (ep.type) {
     case EndpointType::Udp:
-        by_type = {"mode", "address", "peer_timeout"};
-        own.insert({"mode", "address"});
+        by_type = {"mode", "address", "peer_timeout", "rx_buffer"};
+        own.insert({"mode", "address", "rx_buffer"});
         if (ep.mode == EndpointMode::Server)
             own.insert("peer_timeout");
         break;
@@ -540,6 +540,14 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
                                      std::to_string(kMinTxQueueBytes) +
                                      " bytes (one largest frame)");
         ep.tx_queue_bytes = static_cast<size_t>(*n);
+    }
+    if (const Entry* e = view.find("rx_buffer")) {
+        const std::string& text = scalar(*e, ctx);
+        auto n = parse_byte_size(text);
+        if (!n || *n < kMinRxBuffer || *n > kMaxRxBuffer)
+            fail(value_mark(*e), ctx + "'rx_buffer': '" + text +
+                                     "' is not a size between 64KiB and 1GiB (e.g. 16MiB)");
+        ep.rx_buffer = static_cast<size_t>(*n);
     }
     if (const Entry* e = view.find("allow_in"))
         ep.filter_in.allow = message_ids(*e, ctx);

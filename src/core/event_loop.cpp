@@ -33,6 +33,11 @@ void EventLoop::Watch::set_events(uint32_t events) {
 
 uint32_t EventLoop::Watch::events() const { return record_ ? record_->events : 0; }
 
+bool EventLoop::Watch::unread_this_round() const {
+    return record_ && record_->ready_round == loop_->round_ &&
+           record_->dispatched_round != loop_->round_;
+}
+
 void EventLoop::Watch::reset() {
     if (record_)
         loop_->remove_watch(record_);
@@ -79,6 +84,7 @@ EventLoop::EventLoop(UniqueFd epoll_fd) : epoll_fd_(std::move(epoll_fd)) {}
 EventLoop::~EventLoop() {
     signal_watch_.reset();
     round_hooks_.clear();
+    after_io_hooks_.clear();
 }
 
 Result<EventLoop::Watch> EventLoop::watch(int fd, uint32_t events, IoHandler handler) {
@@ -156,6 +162,10 @@ void EventLoop::handle_signals() {
 
 void EventLoop::add_round_hook(std::function<void()> hook) { round_hooks_.push_back(std::move(hook)); }
 
+void EventLoop::add_after_io_hook(std::function<void()> hook) {
+    after_io_hooks_.push_back(std::move(hook));
+}
+
 void EventLoop::request_exit(int code) {
     exit_requested_ = true;
     exit_code_ = code;
@@ -202,6 +212,8 @@ bool EventLoop::run_once(Duration max_wait) {
     int cap = static_cast<int>(std::chrono::ceil<std::chrono::milliseconds>(max_wait).count());
     if (max_wait >= Duration::zero() && (timeout < 0 || timeout > cap))
         timeout = cap;
+    if (std::exchange(prompt_round_, false))
+        timeout = 0;
     std::array<epoll_event, 64> events;
     int n = epoll_wait(epoll_fd_.get(), events.data(), static_cast<int>(events.size()), timeout);
     if (n < 0) {
@@ -212,11 +224,21 @@ bool EventLoop::run_once(Duration max_wait) {
         n = 0;
     }
     now_ = Clock::now();
+    round_++;
+    for (int i = 0; i < n; i++)
+        static_cast<WatchRecord*>(events[i].data.ptr)->ready_round = round_;
     for (int i = 0; i < n; i++) {
         auto* record = static_cast<WatchRecord*>(events[i].data.ptr);
+        record->dispatched_round = round_;
         if (!record->dead)
             record->handler(events[i].events);
     }
+    // A full event array may have left ready fds out: their data waits for the next round,
+    // which must come at once.
+    if (n == static_cast<int>(events.size()))
+        prompt_round_ = true;
+    for (auto& hook : after_io_hooks_)
+        hook();
     run_due_timers();
     for (auto& hook : round_hooks_)
         hook();

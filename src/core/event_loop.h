@@ -40,6 +40,9 @@ public:
         void set_events(uint32_t events);
         uint32_t events() const;
         bool active() const { return record_ != nullptr; }
+        /// Whether the fd had events in this round that its handler has not been given yet:
+        /// the data it holds arrived before what the handlers of this round read so far.
+        bool unread_this_round() const;
         void reset();
 
     private:
@@ -80,6 +83,11 @@ public:
     Result<void> on_signal(int signo, SignalHandler handler);
     /// Runs after every dispatch round, before the loop sleeps (batch flushes).
     void add_round_hook(std::function<void()> hook);
+    /// Runs after the fd handlers of every round, before the timers: work that the timers of
+    /// the round must find done (the frames a round received, merged in arrival order).
+    void add_after_io_hook(std::function<void()> hook);
+    /// The next round polls instead of sleeping (work was held back for it).
+    void request_prompt_round() { prompt_round_ = true; }
     /// Runs `fn` once after this dispatch round: for destroying an object from inside one of
     /// its own handlers.
     void defer(std::function<void()> fn) { deferred_.push_back(std::move(fn)); }
@@ -99,6 +107,8 @@ private:
         uint32_t events;
         IoHandler handler;
         bool dead = false;
+        uint64_t ready_round = 0;       // the last round epoll reported it
+        uint64_t dispatched_round = 0;  // the last round its handler ran
     };
     struct TimerEntry {
         TimePoint due;
@@ -123,6 +133,9 @@ private:
     Watch signal_watch_;
     std::unordered_map<int, SignalHandler> signal_handlers_;
     std::vector<std::function<void()>> round_hooks_;
+    std::vector<std::function<void()>> after_io_hooks_;
+    uint64_t round_ = 0;
+    bool prompt_round_ = false;
     std::vector<std::function<void()>> deferred_;
     TimePoint now_ = Clock::now();
     bool exit_requested_ = false;

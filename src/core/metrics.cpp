@@ -20,6 +20,7 @@ const std::map<std::string, const char*>& counter_help() {
         {"unknown_ids", "Frames received with a message id the daemon does not know."},
         {"bad_flags", "Frames received with unknown incompatibility flags (dropped)."},
         {"rx_filtered", "Received frames dropped by allow_in/block_in."},
+        {"rx_overflows", "Datagrams the kernel dropped because the receive buffer was full."},
         {"tx_frames", "Frames sent."},
         {"tx_bytes", "Bytes sent."},
         {"tx_filtered", "Frames not sent because of allow_out/block_out."},
@@ -78,6 +79,10 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
     set.counter("mavbond_router_frames_without_destination",
                 "Frames that had nowhere to go (no other endpoint, or an unknown target).",
                 router.frames_without_destination());
+    set.counter("mavbond_router_frames_reordered",
+                "Frames of a bond's link held back for frames that arrived before them on "
+                "another link (after a stall, or when several links are read in one round).",
+                router.frames_reordered());
     const char* active_help = "1 for the active link of a bond (tx: active), 0 for its others.";
     set.declare("mavbond_bond_active_link", active_help, MetricSet::Type::Gauge);
     for (size_t b = 0; b < router.bonds().size(); b++) {

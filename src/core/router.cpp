@@ -6,18 +6,50 @@
 
 namespace mavbond {
 
-Router::Router(Duration route_timeout, const std::vector<BondConfig>& bonds)
-    : route_timeout_(route_timeout) {
+// --- Input --------------------------------------------------------------------------------
+
+Router::Input::Input(Router& router, const std::string& bond, const EventLoop::Watch& watch)
+    : router_(router), bond_name_(bond), watch_(watch) {
+    router_.inputs_.push_back(this);
+    router_.place_inputs();
+}
+
+Router::Input::~Input() {
+    auto& inputs = router_.inputs_;
+    inputs.erase(std::remove(inputs.begin(), inputs.end(), this), inputs.end());
+    router_.place_inputs();
+}
+
+// --- Router --------------------------------------------------------------------------------
+
+Router::Router(EventLoop& loop, Duration route_timeout, const std::vector<BondConfig>& bonds)
+    : loop_(loop), route_timeout_(route_timeout) {
     replace_bonds(bonds);
 }
 
 void Router::replace_bonds(const std::vector<BondConfig>& bonds) {
+    // Frames waiting for a bond that is replaced are handled first, in the order they came.
+    for (ArrivalQueue& q : queues_)
+        q.held_until = TimePoint::max();
+    merge_round();
     bonds_.clear();
     for (const auto& b : bonds)
         bonds_.push_back(Bond{b.name, b.tx == BondConfig::Tx::Active});
     for (size_t id = 0; id < endpoints_.size(); id++) {
         if (endpoints_[id])
             bond_of_[id] = bond_index(endpoints_[id]->config().bond);
+    }
+    queues_.assign(bonds_.size(), ArrivalQueue{});
+    place_inputs();
+}
+
+void Router::place_inputs() {
+    for (ArrivalQueue& q : queues_)
+        q.inputs.clear();
+    for (Input* in : inputs_) {
+        in->bond_ = bond_index(in->bond_name_);
+        if (in->bond_ != kNoBond)
+            queues_[in->bond_].inputs.push_back(in);
     }
 }
 
@@ -73,6 +105,17 @@ void Router::remove(Endpoint& endpoint) {
     for (auto& bond : bonds_) {
         if (bond.active_link == id)
             bond.active_link = kNoLink;
+    }
+    if (uint32_t bond = bond_of_[id]; bond != kNoBond) {
+        // Its frames still waiting go with it (a link gone within a round of a stall).
+        auto& frames = queues_[bond].frames;
+        size_t before = frames.size();
+        frames.erase(std::remove_if(frames.begin(), frames.end(),
+                                    [&](const WaitingFrame& w) { return w.from == &endpoint; }),
+                     frames.end());
+        if (frames.size() != before)
+            log_warning("[%s] removed with %zu received frames not yet handled: dropped",
+                        endpoint.name().c_str(), before - frames.size());
     }
     bond_of_[id] = kNoBond;
     dirty_.erase(std::remove(dirty_.begin(), dirty_.end(), &endpoint), dirty_.end());
@@ -170,7 +213,87 @@ void Router::deliver_to_recorders(const Endpoint& from, const Frame& frame, Time
     }
 }
 
-void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint now) {
+bool Router::ArrivalQueue::must_wait(TimePoint t) const {
+    if (!frames.empty())
+        return true;  // after the ones already waiting
+    for (const Input* in : inputs) {
+        if (in->may_hold_before(t))
+            return true;
+    }
+    return false;
+}
+
+void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint arrival) {
+    uint32_t bond = bond_of_[from.id()];
+    if (bond != kNoBond && queues_[bond].must_wait(arrival))
+        wait_aside(queues_[bond], from, frame, arrival);
+    else
+        route(from, frame, arrival);
+}
+
+void Router::wait_aside(ArrivalQueue& queue, Endpoint& from, const Frame& frame,
+                        TimePoint arrival) {
+    auto offset = static_cast<uint32_t>(queue.arena.size());
+    queue.arena.insert(queue.arena.end(), frame.bytes.begin(), frame.bytes.end());
+    queue.frames.push_back(WaitingFrame{arrival, wait_order_++, &from, frame, offset});
+    frames_merged_++;
+}
+
+void Router::merge_round() {
+    bool held = false;
+    for (ArrivalQueue& q : queues_) {
+        if (q.frames.empty())
+            continue;
+        // Every frame up to the time each input is known to be read to.
+        TimePoint until = TimePoint::max();
+        for (const Input* in : q.inputs) {
+            if (in->may_hold_more())
+                until = std::min(until, in->last_);
+        }
+        std::sort(q.frames.begin(), q.frames.end(), [](const WaitingFrame& a, const WaitingFrame& b) {
+            return a.arrival != b.arrival ? a.arrival < b.arrival : a.order < b.order;
+        });
+        size_t done = 0;
+        for (; done < q.frames.size() && q.frames[done].arrival <= until; done++) {
+            WaitingFrame& w = q.frames[done];
+            const uint8_t* base = q.arena.data() + w.offset;
+            auto payload_at = w.frame.payload.data() - w.frame.bytes.data();
+            w.frame.payload = {base + payload_at, w.frame.payload.size()};
+            w.frame.bytes = {base, w.frame.bytes.size()};
+            route(*w.from, w.frame, w.arrival);
+        }
+        if (done == q.frames.size()) {
+            q.frames.clear();
+            q.arena.clear();
+            q.held_until = TimePoint::max();
+            continue;
+        }
+        // The rest waits; its bytes move to the front of the arena.
+        q.frames.erase(q.frames.begin(), q.frames.begin() + static_cast<ptrdiff_t>(done));
+        size_t keep_from = q.frames.front().offset;  // not sorted by offset: find the lowest
+        for (const WaitingFrame& w : q.frames)
+            keep_from = std::min<size_t>(keep_from, w.offset);
+        q.arena.erase(q.arena.begin(), q.arena.begin() + static_cast<ptrdiff_t>(keep_from));
+        for (WaitingFrame& w : q.frames)
+            w.offset -= static_cast<uint32_t>(keep_from);
+        q.held_until = until;
+        held = true;
+    }
+    end_batch();
+    if (held)
+        loop_.request_prompt_round();
+}
+
+TimePoint Router::arrival_clock(TimePoint now) const {
+    TimePoint t = now;
+    for (const ArrivalQueue& q : queues_) {
+        if (!q.frames.empty())
+            t = std::min(t, q.held_until);
+    }
+    return t;
+}
+
+void Router::route(Endpoint& from, const Frame& frame, TimePoint now) {
     // A frame that fails the endpoint's signing check is nobody's: it may not even teach a route.
     if (!from.authentic(frame))
         return;

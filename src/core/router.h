@@ -8,6 +8,16 @@
 // (`tx: active`, chosen by the link-switch filter).
 //
 // Recorders (a flight log) get every routed frame, targeted ones included.
+//
+// Arrival order: the frames of a bond's links reach the filters in the order they arrived,
+// however late the loop gets to them. A stalled daemon finds a backlog on every link at once;
+// handed on link by link, the frames one link lost would come after newer ones another link
+// carried (and be dropped as stale, or numbered out of order). So a frame from a bond's link
+// is handled at once only when no other socket of the bond can still hold an earlier one (its
+// fd is ready but not yet read in this round, or its last read filled the whole batch and
+// ended before this frame arrived); otherwise it is copied aside, and after the round's reads
+// the copies are handled in arrival order, up to the time every socket of the bond is known
+// to be read to. The rest waits for the next round, which then comes at once.
 #pragma once
 
 #include <cstdint>
@@ -16,6 +26,7 @@
 
 #include "config/config.h"
 #include "core/clock.h"
+#include "core/event_loop.h"
 #include "mavlink/frame.h"
 
 namespace mavbond {
@@ -46,16 +57,56 @@ public:
         uint64_t switches = 0;
     };
 
-    Router(Duration route_timeout, const std::vector<BondConfig>& bonds = {});
+    /// A datagram socket that may feed a bond's links (a UDP server with its peers, a UDP
+    /// client): what the arrival-order merge must know of it. Registered for its owner's life.
+    class Input {
+    public:
+        /// `watch` is the socket's (its address must stay put while the input lives).
+        Input(Router& router, const std::string& bond, const EventLoop::Watch& watch);
+        ~Input();
+        Input(const Input&) = delete;
+        Input& operator=(const Input&) = delete;
+        /// After each read: `full` when it filled its whole batch (more waits in the kernel)
+        /// and `until` when the last datagram it read arrived; else `until` is when the read
+        /// was made (everything that arrived before it was read).
+        void read(bool full, TimePoint until) {
+            backlog_ = full;
+            last_ = until;
+        }
+        /// A read that failed (an ICMP error comes first): data may still wait behind it.
+        void read_failed() { backlog_ = true; }
+
+    private:
+        friend class Router;
+        /// Whether the kernel may hold more for it than it read (which arrived after last_).
+        bool may_hold_more() const { return backlog_ || watch_.unread_this_round(); }
+        /// Whether it may still hold a frame that arrived before `t`.
+        bool may_hold_before(TimePoint t) const { return may_hold_more() && last_ < t; }
+        Router& router_;
+        std::string bond_name_;
+        uint32_t bond_ = kNoBond;
+        const EventLoop::Watch& watch_;
+        bool backlog_ = false;
+        TimePoint last_{};
+    };
+
+    Router(EventLoop& loop, Duration route_timeout, const std::vector<BondConfig>& bonds = {});
 
     /// Registers a route target and gives it an id (and its bond, from its config). The
     /// endpoint must call remove() before it is destroyed.
     void add(Endpoint& endpoint);
     void remove(Endpoint& endpoint);
 
-    /// Handles one received frame: learn, filter, route, queue. The frame's bytes must stay
-    /// valid until end_batch().
-    void handle_frame(Endpoint& from, const Frame& frame, TimePoint now);
+    /// Handles one received frame that arrived at `arrival`: learn, filter, route, queue (or,
+    /// for a bond's link, copy it aside until the frames that arrived before it are in; see
+    /// above). The frame's bytes must stay valid until end_batch().
+    void handle_frame(Endpoint& from, const Frame& frame, TimePoint arrival);
+    /// Handles the frames copied aside in this round, in arrival order (the event loop calls
+    /// it after every round's reads).
+    void merge_round();
+    /// The time up to which every frame that arrived has been handled: `now`, or earlier while
+    /// a bond's frames wait for a socket still to be read.
+    TimePoint arrival_clock(TimePoint now) const;
     /// Sends a frame mavbond made itself (its own HEARTBEAT, STATUSTEXT) as a local source:
     /// to every endpoint the bonds' tx policy lets send, through the egress filters; nothing
     /// is learned and no ingress filter sees it. Flushes before returning, so the bytes need
@@ -85,6 +136,8 @@ public:
     bool knows(const Endpoint& endpoint, uint8_t sysid, uint8_t compid) const;
     uint64_t frames_routed() const { return frames_routed_; }
     uint64_t frames_without_destination() const { return frames_without_destination_; }
+    /// Frames handled after waiting for the frames that arrived before them.
+    uint64_t frames_reordered() const { return frames_merged_; }
 
 private:
     struct Route {
@@ -92,6 +145,27 @@ private:
         uint8_t compid;
         TimePoint last_heard;
     };
+    /// A frame copied aside: its bytes at `offset` in the bond's arena.
+    struct WaitingFrame {
+        TimePoint arrival;
+        uint64_t order;  // ties (the frames of one datagram) keep the order they came in
+        Endpoint* from;
+        Frame frame;     // spans rebuilt from the arena when handled
+        uint32_t offset;
+    };
+    /// A bond's frames copied aside and the inputs that feed it.
+    struct ArrivalQueue {
+        std::vector<Input*> inputs;
+        std::vector<WaitingFrame> frames;
+        std::vector<uint8_t> arena;
+        TimePoint held_until = TimePoint::max();  // frames after it wait for the next round
+        bool must_wait(TimePoint t) const;
+    };
+    /// Learn, filter, route, queue.
+    void route(Endpoint& from, const Frame& frame, TimePoint arrival);
+    void wait_aside(ArrivalQueue& queue, Endpoint& from, const Frame& frame, TimePoint arrival);
+    /// Resolves every input's bond by name (after replace_bonds()).
+    void place_inputs();
     void learn(Endpoint& from, uint8_t sysid, uint8_t compid, TimePoint now);
     /// Whether the route target `to` belongs to (itself, or its whole bond) knows the target.
     bool target_knows(const Endpoint& to, uint8_t sysid, uint8_t compid) const;
@@ -107,8 +181,13 @@ private:
     /// (they never learn routes, so the targeted path passes them by).
     void deliver_to_recorders(const Endpoint& from, const Frame& frame, TimePoint now);
 
+    EventLoop& loop_;
     Duration route_timeout_;
     std::vector<Bond> bonds_;
+    std::vector<ArrivalQueue> queues_;            // index = bond index
+    std::vector<Input*> inputs_;
+    uint64_t wait_order_ = 0;
+    uint64_t frames_merged_ = 0;
     std::vector<Endpoint*> endpoints_;            // index = endpoint id; nullptr = free slot
     std::vector<uint32_t> bond_of_;               // index = endpoint id
     std::vector<std::vector<Route>> routes_;      // index = endpoint id

@@ -16,6 +16,7 @@ EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
     rx.unknown_ids += o.rx.unknown_ids;
     rx.bad_flags += o.rx.bad_flags;
     rx_filtered += o.rx_filtered;
+    rx_overflows += o.rx_overflows;
     tx_frames += o.tx_frames;
     tx_bytes += o.tx_bytes;
     tx_filtered += o.tx_filtered;

@@ -23,6 +23,7 @@ class EventLoop;
 struct EndpointStats {
     ParserCounters rx;          // frames, bytes, crc_errors, garbage_bytes, unknown_ids, bad_flags
     uint64_t rx_filtered = 0;   // dropped by allow_in/block_in
+    uint64_t rx_overflows = 0;  // datagrams the kernel dropped: the receive buffer was full
     uint64_t tx_frames = 0;
     uint64_t tx_bytes = 0;
     uint64_t tx_filtered = 0;   // dropped by allow_out/block_out
@@ -47,6 +48,7 @@ void for_each_counter(const EndpointStats& s, F&& f) {
     f("unknown_ids", s.rx.unknown_ids);
     f("bad_flags", s.rx.bad_flags);
     f("rx_filtered", s.rx_filtered);
+    f("rx_overflows", s.rx_overflows);
     f("tx_frames", s.tx_frames);
     f("tx_bytes", s.tx_bytes);
     f("tx_filtered", s.tx_filtered);

@@ -4,8 +4,12 @@
 #include <netdb.h>
 #include <sys/socket.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <cstdint>
 #include <cstring>
+
+#include "core/log.h"
 
 namespace mavbond {
 
@@ -34,25 +38,45 @@ std::string to_string(const sockaddr_in& addr) {
     return std::string(text) + ":" + std::to_string(ntohs(addr.sin_port));
 }
 
-Result<UniqueFd> make_socket(int type) {
+namespace {
+
+/// What a datagram socket needs: room for a stall's backlog, and arrival times.
+void set_up_datagram_socket(int fd, size_t rx_buffer, const std::string& name) {
+    // The kernel doubles what it is asked for (half is its bookkeeping), and counts the
+    // bookkeeping against the buffer too: ask for half. Forced past net.core.rmem_max when
+    // privileged; otherwise rmem_max caps it (the package raises it, see debian/).
+    int half = static_cast<int>(std::min<size_t>(rx_buffer / 2, INT32_MAX / 2));
+    if (setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &half, sizeof half) < 0)
+        setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &half, sizeof half);
+    int granted = 0;
+    socklen_t len = sizeof granted;
+    getsockopt(fd, SOL_SOCKET, SO_RCVBUF, &granted, &len);
+    if (static_cast<size_t>(granted) < rx_buffer)
+        log_warning("[%s] rx_buffer: the kernel gave %d of %zu bytes (net.core.rmem_max caps an "
+                    "unprivileged socket): a stall may overflow it",
+                    name.c_str(), granted, rx_buffer);
+    int one = 1;
+    setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one);
+    setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one);
+}
+
+}  // namespace
+
+Result<UniqueFd> make_socket(int type, size_t rx_buffer, const std::string& name) {
     UniqueFd fd(socket(AF_INET, type | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
     if (!fd)
         return make_error(std::string("socket: ") + strerror(errno));
-    if (type == SOCK_DGRAM) {
-        // A link that bursts hundreds of datagrams (a replay, a radio flushing its buffer)
-        // must not overflow the default ~200 KiB. Forced past rmem_max when privileged.
-        int size = 2 << 20;
-        if (setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUFFORCE, &size, sizeof size) < 0)
-            setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUF, &size, sizeof size);
-    }
+    if (type == SOCK_DGRAM)
+        set_up_datagram_socket(fd.get(), rx_buffer, name);
     return fd;
 }
 
-Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port) {
+Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port,
+                                size_t rx_buffer, const std::string& name) {
     auto addr = resolve_ipv4(host, port);
     if (!addr)
         return addr.error();
-    auto fd = make_socket(type);
+    auto fd = make_socket(type, rx_buffer, name);
     if (!fd)
         return fd.error();
     int one = 1;

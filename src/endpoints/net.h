@@ -16,14 +16,17 @@ std::string to_string(const sockaddr_in& addr);
 inline bool same_address(const sockaddr_in& a, const sockaddr_in& b) {
     return a.sin_addr.s_addr == b.sin_addr.s_addr && a.sin_port == b.sin_port;
 }
-/// A non-blocking, close-on-exec socket.
-Result<UniqueFd> make_socket(int type);
+/// A non-blocking, close-on-exec socket. A datagram socket gets a receive buffer of
+/// `rx_buffer` bytes (as the kernel counts them) and stamps each datagram with its arrival
+/// time and the socket's drop count; `name` names it in a warning when the kernel gives less.
+Result<UniqueFd> make_socket(int type, size_t rx_buffer = 0, const std::string& name = "");
 /// A socket of `type` bound to host:port (SO_REUSEADDR), for the servers.
 struct BoundSocket {
     UniqueFd fd;
     sockaddr_in addr;
 };
-Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port);
+Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port,
+                                size_t rx_buffer = 0, const std::string& name = "");
 std::string errno_text(int err);
 
 }  // namespace mavbond

@@ -94,12 +94,14 @@ void StreamEndpoint::read_frames() {
         auto area = parser_.write_area();
         ssize_t n = read(fd_.get(), area.data(), area.size());
         if (n > 0) {
+            // A byte stream carries no arrival times: a frame arrived when the read that
+            // completed it was made (not when the loop's round began).
+            TimePoint arrival = Clock::now();
             parser_.commit(static_cast<size_t>(n));
-            TimePoint now = loop_.now();
             Frame frame;
             while (parser_.next(frame)) {
-                router_.handle_frame(*this, frame, now);
-                stats_.last_rx = now;
+                router_.handle_frame(*this, frame, arrival);
+                stats_.last_rx = arrival;
             }
             stats_.rx = parser_.counters();
             // Frames lent to other endpoints point into the parser: send before reading on.

@@ -18,18 +18,53 @@ DatagramBatch::DatagramBatch() : arena_(std::make_unique_for_overwrite<uint8_t[]
         msgs_[i].msg_hdr.msg_iov = &iovs_[i];
         msgs_[i].msg_hdr.msg_iovlen = 1;
         msgs_[i].msg_hdr.msg_name = &addrs_[i];
+        msgs_[i].msg_hdr.msg_control = control_[i].data();
     }
 }
 
 int DatagramBatch::receive(int fd) {
     for (size_t i = 0; i < kCount; i++) {
         msgs_[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
+        msgs_[i].msg_hdr.msg_controllen = kControl;
         msgs_[i].msg_hdr.msg_flags = 0;
     }
     int n = recvmmsg(fd, msgs_.data(), kCount, MSG_DONTWAIT, nullptr);
+    // The kernel stamps arrivals on the wall clock; the monotonic one is what every timeout
+    // uses. Their difference, read once per batch, converts one to the other.
+    read_at_ = Clock::now();
+    timespec real{};
+    clock_gettime(CLOCK_REALTIME, &real);
+    int64_t real_minus_mono = real.tv_sec * 1'000'000'000LL + real.tv_nsec -
+                              std::chrono::duration_cast<Duration>(read_at_.time_since_epoch()).count();
+    count_ = n > 0 ? static_cast<size_t>(n) : 0;
+    for (size_t i = 0; i < count_; i++)
+        read_control(i, read_at_, real_minus_mono);
     if (n < 0)
         return errno == EAGAIN || errno == EWOULDBLOCK ? 0 : -errno;
     return n;
+}
+
+void DatagramBatch::read_control(size_t i, TimePoint now, int64_t real_minus_mono) {
+    TimePoint t = now;  // no timestamp: the read's time
+    msghdr& h = msgs_[i].msg_hdr;
+    for (cmsghdr* c = CMSG_FIRSTHDR(&h); c; c = CMSG_NXTHDR(&h, c)) {
+        if (c->cmsg_level != SOL_SOCKET)
+            continue;
+        if (c->cmsg_type == SCM_TIMESTAMPNS) {
+            timespec ts;
+            std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
+            int64_t mono = ts.tv_sec * 1'000'000'000LL + ts.tv_nsec - real_minus_mono;
+            t = std::min(now, TimePoint(Duration(mono)));
+        } else if (c->cmsg_type == SO_RXQ_OVFL) {
+            uint32_t drops;
+            std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
+            overflows_ += static_cast<uint32_t>(drops - kernel_drops_);
+            kernel_drops_ = drops;
+        }
+    }
+    // A wall clock stepped back between two arrivals must not make the later one earlier.
+    last_arrival_ = std::max(last_arrival_, t);
+    arrival_[i] = last_arrival_;
 }
 
 int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in* to) {
@@ -54,12 +89,12 @@ namespace {
 
 /// Parses one datagram and routes its frames on behalf of `from`.
 void route_datagram(std::span<const uint8_t> data, Endpoint& from, EndpointStats& stats,
-                    UnknownIdPolicy policy, Router& router, TimePoint now) {
+                    UnknownIdPolicy policy, Router& router, TimePoint arrival) {
     DatagramParser parser(data, policy, stats.rx);
     Frame frame;
     while (parser.next(frame)) {
-        router.handle_frame(from, frame, now);
-        stats.last_rx = now;
+        router.handle_frame(from, frame, arrival);
+        stats.last_rx = arrival;
     }
 }
 
@@ -82,7 +117,7 @@ void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 
 Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
                                                    Router& router, UnknownIdPolicy policy) {
-    auto bound = bind_socket(SOCK_DGRAM, config.host, config.port);
+    auto bound = bind_socket(SOCK_DGRAM, config.host, config.port, config.rx_buffer, config.name);
     if (!bound)
         return bound.error();
     std::unique_ptr<UdpServer> server(
@@ -92,6 +127,7 @@ Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config,
     if (!w)
         return w.error();
     server->watch_ = std::move(w.value());
+    server->input_ = std::make_unique<Router::Input>(router, config.bond, server->watch_);
     auto period = std::clamp<Duration>(config.peer_timeout / 4, milliseconds(100), seconds(5));
     server->expiry_timer_ = loop.schedule(period, [s = server.get(), period] {
         s->forget_silent_peers();
@@ -173,19 +209,22 @@ void UdpServer::on_events(uint32_t events) {
     int n = batch_.receive(fd_.get());
     if (n < 0) {
         // ICMP errors surface here for a peer that went away: nothing to do but go on.
+        input_->read_failed();
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
-    TimePoint now = loop_.now();
+    stats_.rx_overflows += batch_.take_overflows();
+    input_->read(batch_.full(), batch_.read_until());
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
-        UdpPeer* peer = peer_for(batch_.from(idx), now);
+        TimePoint arrival = batch_.arrival(idx);
+        UdpPeer* peer = peer_for(batch_.from(idx), arrival);
         if (!peer) {
             stats_.rx.garbage_bytes += batch_.data(idx).size();
             continue;
         }
-        peer->heard(now);
-        route_datagram(batch_.data(idx), *peer, peer->mutable_stats(), policy_, router_, now);
+        peer->heard(arrival);
+        route_datagram(batch_.data(idx), *peer, peer->mutable_stats(), policy_, router_, arrival);
     }
     // The frames lent to other endpoints point into batch_: send them before it is reused.
     router_.end_batch();
@@ -198,7 +237,7 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
     auto addr = resolve_ipv4(config.host, config.port);
     if (!addr)
         return addr.error();
-    auto fd = make_socket(SOCK_DGRAM);
+    auto fd = make_socket(SOCK_DGRAM, config.rx_buffer, config.name);
     if (!fd)
         return fd.error();
     // Connected: the kernel delivers only the peer's replies, and send needs no address.
@@ -211,6 +250,7 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
     if (!w)
         return w.error();
     client->watch_ = std::move(w.value());
+    client->input_ = std::make_unique<Router::Input>(router, config.bond, client->watch_);
     router.add(*client);
     log_info("[udp:%s] sending to %s", config.name.c_str(), to_string(*addr).c_str());
     return client;
@@ -241,12 +281,16 @@ void UdpClient::on_events(uint32_t events) {
         // the next send: it is still a datagram we sent that was lost, so a transmit error.
         if (n == -ECONNREFUSED)
             stats_.tx_errors++;
+        input_->read_failed();
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
-    TimePoint now = loop_.now();
-    for (int i = 0; i < n; i++)
-        route_datagram(batch_.data(static_cast<size_t>(i)), *this, stats_, policy_, router_, now);
+    stats_.rx_overflows += batch_.take_overflows();
+    input_->read(batch_.full(), batch_.read_until());
+    for (int i = 0; i < n; i++) {
+        auto idx = static_cast<size_t>(i);
+        route_datagram(batch_.data(idx), *this, stats_, policy_, router_, batch_.arrival(idx));
+    }
     router_.end_batch();
 }
 

@@ -8,16 +8,19 @@
 
 #include <array>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "core/event_loop.h"
+#include "core/router.h"
 #include "endpoints/endpoint.h"
 
 namespace mavbond {
 
-/// A batch of datagrams received with one recvmmsg. Every slot takes the largest datagram
-/// UDP can carry (a bridge may pack many frames into one), yet costs memory only for what is
-/// written: the arena is never initialised, so untouched pages are never made resident.
+/// A batch of datagrams received with one recvmmsg, each with the time the kernel received it
+/// (SO_TIMESTAMPNS) and the socket's drop count (SO_RXQ_OVFL). Every slot takes the largest
+/// datagram UDP can carry (a bridge may pack many frames into one), yet costs memory only for
+/// what is written: the arena is never initialised, so untouched pages are never made resident.
 class DatagramBatch {
 public:
     static constexpr size_t kCount = 32;
@@ -27,13 +30,31 @@ public:
     int receive(int fd);
     std::span<const uint8_t> data(size_t i) const { return {slot(i), msgs_[i].msg_len}; }
     const sockaddr_in& from(size_t i) const { return addrs_[i]; }
+    /// When datagram i arrived (the kernel's receive time, on the monotonic clock).
+    TimePoint arrival(size_t i) const { return arrival_[i]; }
+    /// What the last receive() tells the router: whether the batch was full, and the time up
+    /// to which the socket is read (the last arrival when full, else when it was read).
+    bool full() const { return count_ == kCount; }
+    TimePoint read_until() const { return full() ? arrival_[kCount - 1] : read_at_; }
+    /// Datagrams the kernel dropped for a full receive buffer since the last call.
+    uint64_t take_overflows() { return std::exchange(overflows_, 0); }
 
 private:
+    // Room for a timestamp and a drop counter.
+    static constexpr size_t kControl = CMSG_SPACE(sizeof(timespec)) + CMSG_SPACE(sizeof(uint32_t));
     uint8_t* slot(size_t i) const { return arena_.get() + i * kSize; }
+    void read_control(size_t i, TimePoint now, int64_t realtime_minus_mono_ns);
     std::unique_ptr<uint8_t[]> arena_;
     std::array<mmsghdr, kCount> msgs_{};
     std::array<iovec, kCount> iovs_{};
     std::array<sockaddr_in, kCount> addrs_{};
+    std::array<std::array<uint8_t, kControl>, kCount> control_{};
+    std::array<TimePoint, kCount> arrival_{};
+    size_t count_ = 0;
+    TimePoint read_at_{};
+    TimePoint last_arrival_{};  // arrivals never go back (a stepped wall clock)
+    uint32_t kernel_drops_ = 0; // the socket's drop counter as last seen
+    uint64_t overflows_ = 0;
 };
 
 class UdpServer;
@@ -82,6 +103,7 @@ private:
     UnknownIdPolicy policy_;
     UniqueFd fd_;
     EventLoop::Watch watch_;
+    std::unique_ptr<Router::Input> input_;  // for the arrival order of its bond's links
     EventLoop::Timer expiry_timer_;
     DatagramBatch batch_;
     std::vector<std::unique_ptr<UdpPeer>> peers_;
@@ -110,6 +132,7 @@ private:
     UnknownIdPolicy policy_;
     UniqueFd fd_;  // connected to the peer
     EventLoop::Watch watch_;
+    std::unique_ptr<Router::Input> input_;  // for the arrival order of its bond's links
     DatagramBatch batch_;
 };
 

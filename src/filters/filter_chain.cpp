@@ -317,7 +317,7 @@ void FilterChain::collect_metrics(MetricSet& out) const {
 
 // --- HostServices --------------------------------------------------------------------------
 
-uint64_t FilterChain::now_ns() { return to_ns(loop_.now()); }
+uint64_t FilterChain::now_ns() { return to_ns(router_.arrival_clock(loop_.now())); }
 
 uint64_t FilterChain::timer_add(uint64_t period_ns, std::function<bool()> fn) {
     uint64_t id = next_timer_++;

@@ -1,8 +1,7 @@
 #include "mavbond/daemon.h"
 
-#include <sys/resource.h>
-
 #include <csignal>
+#include <cstdio>
 #include <cstring>
 
 #include "core/log.h"
@@ -45,6 +44,23 @@ bool filters_must_restart(const Config& old, const Config& next) {
            bond_members(old) != bond_members(next) || old.plugin_dir != next.plugin_dir;
 }
 
+/// This process's peak resident set (VmHWM), in KiB; -1 when /proc does not say. Not
+/// ru_maxrss: Linux carries that over from the parent across exec, so a daemon started from a
+/// big process would report the parent's peak.
+long peak_rss_kib() {
+    FILE* f = fopen("/proc/self/status", "r");
+    if (!f)
+        return -1;
+    char line[256];
+    long kib = -1;
+    while (fgets(line, sizeof line, f)) {
+        if (sscanf(line, "VmHWM: %ld kB", &kib) == 1)
+            break;
+    }
+    fclose(f);
+    return kib;
+}
+
 const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
     for (const auto& ep : c.endpoints) {
         if (ep.name == name)
@@ -72,6 +88,8 @@ void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration in
         add(now.rx.garbage_bytes - was.rx.garbage_bytes, "garbage bytes");
         add(now.rx.unknown_ids - was.rx.unknown_ids, "unknown message ids");
         add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
+        add(now.rx_overflows - was.rx_overflows,
+            "datagrams dropped by the kernel (receive buffer full: raise rx_buffer)");
         add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
         add(now.tx_errors - was.tx_errors, "write errors");
         add(now.sig_unsigned - was.sig_unsigned,
@@ -86,7 +104,7 @@ void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration in
 
 Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
     : opts_(opts), loop_(loop), config_(std::move(config)),
-      router_(config_->route_timeout, config_->bonds) {}
+      router_(loop, config_->route_timeout, config_->bonds) {}
 
 Daemon::~Daemon() {
     link_events_.reset();
@@ -176,6 +194,8 @@ std::optional<Daemon::StartError> Daemon::start() {
         router_.expire_routes(loop_.now());
         return Duration(seconds(1));
     });
+    // The frames of a round that waited for earlier arrivals, before the timers see the time.
+    loop_.add_after_io_hook([this] { router_.merge_round(); });
     // Anything still queued (a backlog waiting for EPOLLOUT is flushed by its own watch).
     loop_.add_round_hook([this] { router_.end_batch(); });
     log_notice("mavbond %s running with %zu endpoints from %s", MAVBOND_VERSION,
@@ -194,11 +214,11 @@ int Daemon::run() {
         e->finish(finish_by);
     dump_counters();
     renumber_->log_summary();
-    rusage ru{};
-    getrusage(RUSAGE_SELF, &ru);
-    log_notice("exit: routed %llu frames, %llu without a destination; peak RSS %ld KiB",
+    log_notice("exit: routed %llu frames, %llu without a destination, %llu held back for arrival "
+               "order; peak RSS %ld KiB",
                (unsigned long long)router_.frames_routed(),
-               (unsigned long long)router_.frames_without_destination(), ru.ru_maxrss);
+               (unsigned long long)router_.frames_without_destination(),
+               (unsigned long long)router_.frames_reordered(), peak_rss_kib());
     return code;
 }
 

@@ -78,7 +78,8 @@ protected:
             e->sent.clear();
     }
 
-    Router router_{seconds(10)};
+    std::unique_ptr<EventLoop> loop_ = EventLoop::create().value();
+    Router router_{*loop_, seconds(10)};
     TimePoint now_ = Clock::now();
     std::vector<std::unique_ptr<EndpointConfig>> configs_;
     std::vector<std::unique_ptr<RecordingEndpoint>> endpoints_;
@@ -191,7 +192,7 @@ class BondRouterTest : public RouterTest {
 protected:
     void SetUp() override {}
     void make(BondConfig::Tx tx) {
-        router_ = Router(seconds(10), {BondConfig{"vehicle", tx, {}}});
+        router_.replace_bonds({BondConfig{"vehicle", tx, {}}});
         for (auto [name, bond] : {std::pair{"radio", "vehicle"}, {"lte", "vehicle"}, {"gcs", ""}}) {
             configs_.push_back(std::make_unique<EndpointConfig>());
             configs_.back()->name = name;

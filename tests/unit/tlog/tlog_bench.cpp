@@ -79,7 +79,7 @@ int run(size_t total, const std::string& dir) {
     log_cfg.name = "bench";
     log_cfg.type = EndpointType::Tlog;
     log_cfg.directory = dir;
-    Router router(seconds(30));
+    Router router(*loop.value(), seconds(30));
     NullEndpoint source(src_cfg), sink(sink_cfg);
     router.add(source);
     router.add(sink);
