@@ -1,26 +1,36 @@
 // dedup: turns the copies of one stream that arrive over a bond's links back into one stream
 // (the redundant-telemetry paper's method, made exact).
 //
-// Each frame from a bonded link is hashed once (MurmurHash3) and remembered as an instance
-// for `window`. A frame is a duplicate when an instance with the same key, first seen on
-// another link of the same bond, has not been seen on this link yet and its arrival time fits
-// the latency offset learned between the two links. Byte-identical frames legitimately recur
-// (the sequence byte wraps every 256 frames), so a repeat on the same link is always a new
-// instance, and when a link also loses frames the offset model, not arrival counting, decides
-// which instance a copy belongs to.
+// Identity, not timing. Every frame has a place in its source's (sysid, compid) stream: the
+// host unwraps each link's sequence numbers into positions (mavbond_frame.stream_pos). A
+// link's positions are aligned to the bond's numbering the first time one of its frames
+// matches an instance another link delivered (same key: every byte, or with `key: content`
+// the message without its sequence byte, for links that number the stream each their own
+// way). From then on a frame at bond position P is a copy exactly when P was delivered with
+// the same key: a repeat of the same bytes 256 positions later is a new frame however early or
+// late it comes, and a frame one link lost is recognised when another link brings it, however
+// far behind. A signed frame (MAVLink 2 signing: link id and 48-bit timestamp) is its own
+// identity: its bytes never recur.
+//
+// Time only chooses what identity cannot, and then by the kernel's receive time: which of
+// several instances of a recurring key a link's first frame of a source belongs to, and where
+// a link stands after an outage of more than 128 frames of a source (its sequence byte's step
+// is ambiguous modulo 256; the frame's own key settles it when another link delivered it). A
+// link whose alignment keeps being contradicted by unique keys is aligned anew.
 //
 // Memory: a ring of instances in arrival order (expiry pops its head: O(1) amortised), a slab
-// of entries (one per key, up to kInstances instances each) and an open-addressing table over
-// the slab, all allocated in create and sized by max_entries. Nothing is allocated per frame.
+// of entries (one per key, up to kInstances instances each), an open-addressing table over the
+// slab, and a table of streams (bond, source) with each link's lane in it; all allocated in
+// create and sized by max_entries. Nothing is allocated per frame.
 #include <algorithm>
 #include <cinttypes>
 #include <cstdio>
-#include <cstring>
 #include <cstdlib>
+#include <cstring>
 #include <memory>
 #include <new>
-#include <type_traits>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "mavbond/filter.hpp"
@@ -32,37 +42,34 @@ namespace {
 constexpr uint64_t kMs = 1'000'000;
 constexpr uint64_t kSecond = 1'000 * kMs;
 constexpr uint32_t kNone = UINT32_MAX;
+constexpr int64_t kUnknownPos = INT64_MIN;
 
-// Bond ids and member positions index fixed arrays (per-pair latency models, per-link
-// counters). Bonds join a handful of links; a link beyond these passes untouched (logged once).
+// Bond ids and member positions index fixed arrays; bonds join a handful of links. A link
+// beyond these passes untouched (logged once).
 constexpr uint32_t kMaxBonds = 16;
 constexpr uint32_t kMaxMembers = 8;
 // Instances remembered per key. Identical bytes recur every 256 frames of a source, or every
 // second with key: content (HEARTBEAT): 8 covers a 5 s window at 1 Hz plus the copies in flight.
 // When full, the oldest instance of that key is forgotten (its late copy passes: fail open).
 constexpr int kInstances = 8;
-// A copy fits an instance when its skew is within this of the learned offset, or 4 mean
-// absolute deviations when the pair's jitter is larger. The floor covers a UART's byte
-// timing, a receive batch and the hiccups of a busy companion computer or an LTE modem (a
-// 25 ms floor let such a hiccup through as a duplicate); it only has to stay under half the
-// time identical bytes take to recur: 256 frames of one source (128 ms even at 2,000
-// frames/s). The cap keeps a confused model from swallowing everything: a copy further off
-// than that passes (a duplicate delivered, never a good frame dropped).
-constexpr int64_t kMinTolerance = 60 * static_cast<int64_t>(kMs);
-constexpr int64_t kMaxTolerance = 250 * static_cast<int64_t>(kMs);
-constexpr int64_t kToleranceDeviations = 4;
-// The offset starts as the median of the first samples, so a few wrong ones (a link that
-// lost the first instance of a recurring frame delivers the next as "the" copy) cannot set
-// it; after that an EWMA with gain 1/16 follows it.
-constexpr uint32_t kMinSamples = 8;
-constexpr int64_t kEwmaGain = 16;
+// (bond, source) streams tracked (power of two). Real vehicles have a handful of sources per
+// bond; a frame of a stream beyond the table passes (fail open, counted and logged once).
+constexpr uint32_t kStreams = 1024;
+// A step of a source's sequence byte is ambiguous once a link may have missed this many
+// frames of it (modulo 256, half the range either way).
+constexpr int64_t kAmbiguousStep = 128;
+// The source's frame rate is measured over spans of this length (to tell an outage by time).
+constexpr uint64_t kRateSpan = kSecond;
+// A link's lag behind the first copy is averaged with gain 1/16 (it only chooses between
+// instances whose identity is ambiguous).
+constexpr int64_t kLagGain = 16;
 // A timestamp going back by more than this is an autopilot reboot (time_boot_ms restarts),
 // not a late copy: a late copy lags by the links' skew, which the window is sized to cover.
 constexpr uint64_t kMinRebootJump = 2 * kSecond;
 constexpr uint64_t kEvictLogPeriod = 10 * kSecond;
 // (bond, sysid, compid, msgid) streams whose newest timestamp is kept (power of two). A
 // stream beyond it is not checked for staleness (fail open); real vehicles have a few hundred.
-constexpr uint32_t kStreams = 4096;
+constexpr uint32_t kSampleStreams = 4096;
 // Upper bound for max_entries: a typo must not allocate gigabytes at start.
 constexpr int64_t kMaxEntriesLimit = int64_t{1} << 24;
 constexpr uint32_t kScopeCache = 256;
@@ -70,7 +77,6 @@ constexpr uint32_t kScopeCache = 256;
 enum class HashKind { murmur3_128, murmur3_32 };
 enum class KeyKind { frame, content };
 
-/// One remembered instance of a key, in the ring in arrival order.
 /// A fixed array from calloc: fresh zero pages that only become resident as they are used, so
 /// a generous max_entries costs memory only for what the window really holds. T must be
 /// trivially copyable with all-zero bytes a valid value.
@@ -93,10 +99,15 @@ private:
     std::unique_ptr<T, Free> data_;
 };
 
+/// One delivered instance of a key, in the ring in arrival order.
 struct Record {
+    uint64_t h1, h2;         // its key
     uint64_t t0;             // arrival of the first copy
+    int64_t pos;             // its bond position; kUnknownPos until its link is aligned
+    int64_t link_pos;        // the first copy's position on its own link
     uint32_t entry;          // kNone: forgotten (its slot was reused), skipped by expiry
     uint32_t first_link_id;  // for the notes
+    uint32_t stream;
     uint8_t slot;            // index in the entry's rec[]
     uint8_t first_member;    // position of the first link in its bond
     uint8_t seen;            // members that have had this instance (bit = member position)
@@ -112,20 +123,44 @@ struct Entry {
     uint8_t recurred;  // the key has had two instances in the window at once (a HEARTBEAT...)
 };
 
-/// The latency offset between two members of a bond: t_hi - t_lo for one instance, signed.
-struct PairModel {
-    int64_t offset_ns = 0;
-    int64_t mad_ns = 0;  // mean absolute deviation of the samples from the offset
-    uint32_t samples = 0;
-    int64_t first[kMinSamples] = {};  // the samples before the offset is trusted
+/// A source's frames in one bond, numbered by the bond (positions of the first link heard).
+struct Stream {
+    uint64_t key;        // bond << 16 | sysid << 8 | compid; 0: empty (bond + 1 keeps it apart)
+    int64_t first_pos;   // the first position delivered
+    int64_t head;        // the highest position delivered; kUnknownPos: none yet
+    uint64_t head_t;     // when it was
+    int64_t span_pos;    // where the current rate span started
+    uint64_t span_t;
+    uint64_t ns_per_frame;  // the source's frame interval; 0: not measured yet
+    uint32_t head_member;   // the link that brought the head (whose timing head_t is)
+};
+
+/// One link's view of one stream: how its positions map to the bond's.
+struct Lane {
+    uint32_t generation;  // the member's generation it belongs to; older: a fresh lane
+    uint8_t aligned;
+    uint8_t tentative;       // time chose the alignment among several: a unique key may overrule it
+    uint8_t contradictions;  // unique keys in a row found elsewhere than the alignment says
+    int64_t offset;          // bond position = link position + offset
+    int64_t proposed;        // the offset those contradictions agree on
+    int64_t last_link_pos;   // the link's highest position of the stream so far
+    int64_t last_bond_pos;
+    int64_t head_then;       // the stream's head when the link's last frame came
+    uint64_t last_t;
 };
 
 struct Member {
     uint32_t link_id = kNone;
+    uint32_t generation = 1;
     uint64_t passed = 0, duplicates = 0, stale = 0;
+    uint64_t aligned = 0;    // lanes aligned (one per stream, more after outages)
+    uint64_t by_time = 0;    // of those, where the time of arrival chose among instances
+    uint64_t realigned = 0;  // a lane's alignment replaced (outage, restart, contradiction)
+    int64_t lag_ns = 0;      // how long after the first copy this link's copies come
+    bool lag_known = false;
 };
 
-struct Stream {
+struct SampleStream {
     uint64_t key = UINT64_MAX;  // UINT64_MAX: empty
     uint64_t newest_ns = 0;
 };
@@ -136,19 +171,22 @@ constexpr const char* kKeyNames[] = {"frame", "content"};
 // Defaults, and why:
 // - window 2s: must exceed the largest latency skew between a bond's links. Radio links run at
 //   tens of ms; LTE and satellite paths sit hundreds of ms behind and spike past 1 s under load.
-//   Exact matching keeps a long window safe, so 2 s leaves a margin; copies later than that
-//   pass, and drop_stale still catches late timestamped samples. (The paper used 5 s.)
+//   Matching by identity keeps a long window safe, so 2 s leaves a margin; copies later than
+//   that pass, and drop_stale still catches late timestamped samples. (The paper used 5 s.)
 // - hash murmur3_128: with N keys in the window, a new frame collides with one of them with
 //   probability N/2^bits, and a collision drops a good frame. At 1000 frames/s and 2 s that is
 //   one lost frame every ~35 minutes with 32 bits, never in practice with 128. The hash is
 //   computed once over <= 280 bytes, cheap on a Pi's 64-bit core.
 // - key frame: the other gateway fans out one stream, so copies are byte-identical; `content`
 //   is for an autopilot feeding two radios with separate sequence counters.
-// - drop_stale true: delivering an older position after a newer one makes the vehicle jump
-//   back on the map (the paper's "rubberbanding").
+// - drop_stale true, stale_after 250ms: delivering a position sample well behind one already
+//   delivered makes the vehicle jump back on the map (the paper's "rubberbanding"), but a
+//   sample a few tens of ms behind moves it by centimetres while dropping it is a lost frame:
+//   at 1,000 frames/s a copy the slower link brings 30 ms late would be. 250 ms lets through
+//   what a radio's jitter and queue or an LTE modem add in normal operation (measured in
+//   scripts/compare: its radio57600 and skew scenarios), and still stops a second-old sample.
 // - max_entries 32768: instances remembered (one per unique frame, copies add none). At 2 s
-//   that holds 16k unique frames/s, 7x a 921600-baud UART full of small frames; about
-//   100 bytes each (3.3 MB), allocated once.
+//   that holds 16k unique frames/s, 7x a 921600-baud UART full of small frames.
 const mavbond_option kOptions[] = {
     {"window", MAVBOND_OPT_DURATION, "2s",
      "how long a frame is remembered; covers the largest latency skew between the bond's links "
@@ -159,7 +197,10 @@ const mavbond_option kOptions[] = {
      "frame (every byte) or content (sysid, compid, msgid, payload: copies with their own "
      "sequence counters)"},
     {"drop_stale", MAVBOND_OPT_BOOL, "true",
-     "drop a timestamped sample older than the newest delivered of its (sysid, compid, msgid)"},
+     "drop a timestamped sample older than the newest delivered of its (sysid, compid, msgid) "
+     "by more than stale_after"},
+    {"stale_after", MAVBOND_OPT_DURATION, "250ms",
+     "how far behind the newest delivered sample a late one may be and still pass"},
     {"max_entries", MAVBOND_OPT_INT, "32768",
      "frames remembered at most; beyond it the oldest are forgotten early (their copies pass)"},
     {nullptr, MAVBOND_OPT_BOOL, nullptr, nullptr},
@@ -171,6 +212,8 @@ uint64_t read_le(const uint8_t* p, uint32_t avail, uint32_t size) {
         v |= uint64_t{i < avail ? p[i] : uint8_t{0}} << (8 * i);
     return v;
 }
+
+int64_t abs64(int64_t x) { return x < 0 ? -x : x; }
 
 class Dedup {
 public:
@@ -195,31 +238,45 @@ private:
     struct Key {
         uint64_t h1, h2;
     };
-    struct Match {
+    /// What one frame is: a copy of a delivered instance, or new; and where it stands.
+    struct Verdict {
         bool duplicate = false;
+        int64_t pos = kUnknownPos;
         uint32_t first_link_id = kNone;
         int64_t skew_ns = 0;
+    };
+    /// The frame being decided, as the matching steps see it.
+    struct Arrival {
+        uint32_t bond, member, link_id, stream;
+        int64_t link_pos;
+        uint64_t t;
+        bool is_signed;
+        // Its key never recurs: signed (a 48-bit timestamp in the signature), or a message
+        // carrying time_boot_ms / time_usec. Only such a key may overrule an alignment.
+        bool unique;
     };
 
     bool in_scope(const mavbond_link* link);
     bool scope_allows(const mavbond_link* link) const;
     Key hash(const mavbond_frame* f) const;
-    /// `timestamped`: the message carries time_boot_ms / time_usec, so its bytes never recur.
-    Match match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t,
-                bool timestamped);
+    uint32_t stream_of(uint32_t bond, uint8_t sysid, uint8_t compid);
+    Lane& lane_of(const Arrival& a);
+    Verdict decide(const Arrival& a, Key key, uint32_t flags);
+    /// Whether the link may have missed more than kAmbiguousStep frames since its last one.
+    bool after_outage(const Lane& lane, const Stream& s, uint64_t t) const;
+    /// A link not aligned (or no longer, after an outage): finds the frame's place.
+    Verdict align(const Arrival& a, Lane& lane, uint32_t e, bool outage);
+    Verdict copy_of(const Arrival& a, uint32_t rec);
+    void set_alignment(const Arrival& a, Lane& lane, int64_t offset);
+    void learn_lag(Member& m, int64_t skew_ns);
+    void remember(const Arrival& a, Key key, int64_t pos);
+    void note_position(const Arrival& a, Lane& lane, int64_t pos);
+    uint32_t pos_home(uint32_t stream, int64_t pos) const;
+    /// The instance delivered at a stream's position, or kNone.
+    uint32_t at(uint32_t stream, int64_t pos) const;
+    void place(uint32_t rec);
+    void unplace(uint32_t rec);
     bool stale(uint32_t bond, const mavbond_frame* f);
-
-    PairModel& pair(uint32_t bond, uint32_t a, uint32_t b) {
-        return pairs_[(bond * kMaxMembers + std::min(a, b)) * kMaxMembers + std::max(a, b)];
-    }
-    /// Expected arrival on `to` minus arrival on `from` for one instance.
-    int64_t predicted_skew(const PairModel& p, uint32_t from, uint32_t to) const {
-        return from < to ? p.offset_ns : -p.offset_ns;
-    }
-    static int64_t tolerance(const PairModel& p) {
-        return std::clamp(kToleranceDeviations * p.mad_ns, kMinTolerance, kMaxTolerance);
-    }
-    void learn(PairModel& p, int64_t sample);
 
     uint32_t table_home(uint64_t h1, uint32_t bond) const {
         uint64_t x = (h1 ^ (uint64_t{bond} * 0x9e3779b97f4a7c15ull)) * 0xbf58476d1ce4e5b9ull;
@@ -228,10 +285,13 @@ private:
     uint32_t find(uint32_t bond, Key key) const;
     uint32_t insert_entry(uint32_t bond, Key key);
     void erase_entry(uint32_t e);
-    void add_instance(uint32_t e, uint32_t member, uint32_t link_id, uint64_t t);
+    /// Adds an instance to key e (forgetting its oldest when full); returns its ring index.
+    uint32_t add_instance(uint32_t e, const Record& r);
     void remove_instance(uint32_t e, uint8_t slot);
     void pop_front(bool early, uint64_t now);
     void expire(uint64_t now);
+
+    Member& member_of(uint32_t bond, uint32_t member) { return members_[bond * kMaxMembers + member]; }
 
     const mavbond_host_api* api_;
     mavbond_host* host_;
@@ -244,6 +304,7 @@ private:
     HashKind hash_ = HashKind::murmur3_128;
     KeyKind key_ = KeyKind::frame;
     bool drop_stale_ = true;
+    uint64_t stale_after_ns_ = 250 * kMs;
     uint64_t reboot_jump_ns_ = kMinRebootJump;
 
     uint32_t capacity_ = 0;  // max_entries
@@ -254,17 +315,22 @@ private:
     uint32_t free_count_ = 0;
     uint32_t fresh_ = 0;                  // entries never used yet start here
     ZeroedArray<uint32_t> table_;         // entry + 1; 0: an empty slot
+    ZeroedArray<uint32_t> at_pos_;        // by (stream, position): ring index + 1; 0: empty
     uint32_t table_bits_ = 0, table_mask_ = 0;
 
-    std::vector<PairModel> pairs_;
-    std::vector<Member> members_;
-    std::vector<Stream> streams_;
+    ZeroedArray<Stream> streams_;
+    ZeroedArray<Lane> lanes_;  // [stream * kMaxMembers + member]
     uint32_t streams_used_ = 0;
+    uint64_t untracked_sources_ = 0;
+    std::vector<Member> members_;
+    std::vector<SampleStream> samples_;
+    uint32_t samples_used_ = 0;
 
     uint64_t clock_ns_ = 0;  // newest arrival seen: time never runs backwards here
     uint64_t evicted_early_ = 0, evicted_since_log_ = 0, last_evict_log_ns_ = 0;
-    bool evict_logged_ = false, overflow_logged_ = false, streams_full_logged_ = false;
-    uint64_t untracked_streams_ = 0;
+    bool evict_logged_ = false, overflow_logged_ = false, samples_full_logged_ = false;
+    bool sources_full_logged_ = false;
+    uint64_t untracked_samples_ = 0;
 };
 
 int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
@@ -293,6 +359,7 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
     int b = 1;
     api_->cfg_bool(cfg, "drop_stale", &b);
     drop_stale_ = b != 0;
+    api_->cfg_duration_ns(cfg, "stale_after", &stale_after_ns_);
     int64_t max_entries = 32768;
     api_->cfg_int(cfg, "max_entries", &max_entries);
     if (max_entries < 1 || max_entries > kMaxEntriesLimit) {
@@ -300,7 +367,7 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
         return -1;
     }
     api_->scope(cfg, &scope_bonds_, &scope_bond_count_, &scope_endpoints_, &scope_endpoint_count_);
-    reboot_jump_ns_ = std::max(kMinRebootJump, 2 * window_ns_);
+    reboot_jump_ns_ = std::max({kMinRebootJump, 2 * window_ns_, 2 * stale_after_ns_});
 
     capacity_ = static_cast<uint32_t>(max_entries);
     // The table stays at most half full, so probe runs stay short.
@@ -312,9 +379,11 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
     entries_.allocate(capacity_);
     free_entries_.allocate(capacity_);
     table_.allocate(size_t{1} << table_bits_);
-    pairs_.assign(size_t{kMaxBonds} * kMaxMembers * kMaxMembers, PairModel{});
+    at_pos_.allocate(size_t{1} << table_bits_);
+    streams_.allocate(kStreams);
+    lanes_.allocate(size_t{kStreams} * kMaxMembers);
     members_.assign(size_t{kMaxBonds} * kMaxMembers, Member{});
-    streams_.assign(kStreams, Stream{});
+    samples_.assign(kSampleStreams, SampleStream{});
     return 0;
 }
 
@@ -386,6 +455,8 @@ Dedup::Key Dedup::hash(const mavbond_frame* f) const {
     return {h.h1, h.h2};
 }
 
+// --- the key table -------------------------------------------------------------------------
+
 uint32_t Dedup::find(uint32_t bond, Key key) const {
     for (uint32_t i = table_home(key.h1, bond);; i = (i + 1) & table_mask_) {
         if (table_[i] == 0)
@@ -442,8 +513,10 @@ void Dedup::remove_instance(uint32_t e, uint8_t slot) {
 
 void Dedup::pop_front(bool early, uint64_t now) {
     Record& r = ring_[ring_head_];
-    if (r.entry != kNone) {
+    unplace(ring_head_);
+    if (r.entry != kNone)
         remove_instance(r.entry, r.slot);
+    if (r.entry != kNone || r.pos != kUnknownPos) {
         if (early) {
             evicted_early_++;
             evicted_since_log_++;
@@ -466,22 +539,23 @@ void Dedup::pop_front(bool early, uint64_t now) {
 }
 
 void Dedup::expire(uint64_t now) {
-    // The ring is in arrival order, so expiry stops at the first live instance in the window.
+    // The ring is in arrival order, so expiry stops at the first instance in the window.
     while (ring_count_ > 0) {
         const Record& r = ring_[ring_head_];
-        if (r.entry != kNone && now - r.t0 <= window_ns_)
+        if ((r.entry != kNone || r.pos != kUnknownPos) && now - r.t0 <= window_ns_)
             break;
         pop_front(false, now);
     }
 }
 
-void Dedup::add_instance(uint32_t e, uint32_t member, uint32_t link_id, uint64_t t) {
+uint32_t Dedup::add_instance(uint32_t e, const Record& rec) {
     Entry& en = entries_[e];
     uint8_t slot = en.count;
     if (en.count > 0)
         en.recurred = 1;
     if (en.count == kInstances) {
-        // Forget this key's oldest instance; its ring record stays until expiry pops it.
+        // The key's oldest instance is no longer a candidate for aligning a link; its
+        // position still holds it until expiry pops it.
         slot = 0;
         for (uint8_t s = 1; s < kInstances; s++) {
             if (ring_[en.rec[s]].t0 < ring_[en.rec[slot]].t0)
@@ -491,110 +565,373 @@ void Dedup::add_instance(uint32_t e, uint32_t member, uint32_t link_id, uint64_t
     } else {
         en.count++;
     }
-    uint32_t pos = ring_head_ + ring_count_;
-    if (pos >= capacity_)
-        pos -= capacity_;
+    uint32_t at = ring_head_ + ring_count_;
+    if (at >= capacity_)
+        at -= capacity_;
     ring_count_++;
-    ring_[pos] = Record{t, e, link_id, slot, static_cast<uint8_t>(member),
-                        static_cast<uint8_t>(1u << member)};
-    en.rec[slot] = pos;
+    ring_[at] = rec;
+    ring_[at].entry = e;
+    ring_[at].slot = slot;
+    en.rec[slot] = at;
+    return at;
 }
 
-void Dedup::learn(PairModel& p, int64_t sample) {
-    if (p.samples < kMinSamples) {
-        p.first[p.samples++] = sample;
-        if (p.samples == kMinSamples) {
-            int64_t sorted[kMinSamples];
-            std::copy(p.first, p.first + kMinSamples, sorted);
-            std::sort(sorted, sorted + kMinSamples);
-            p.offset_ns = sorted[kMinSamples / 2];
-            for (int64_t& x : sorted)
-                x = x < p.offset_ns ? p.offset_ns - x : x - p.offset_ns;
-            std::sort(sorted, sorted + kMinSamples);
-            p.mad_ns = sorted[kMinSamples / 2];
+// --- the position table --------------------------------------------------------------------
+
+uint32_t Dedup::pos_home(uint32_t stream, int64_t pos) const {
+    uint64_t x = (static_cast<uint64_t>(pos) * 0x9e3779b97f4a7c15ull) ^
+                 (uint64_t{stream} * 0xbf58476d1ce4e5b9ull);
+    x ^= x >> 31;
+    x *= 0x94d049bb133111ebull;
+    return static_cast<uint32_t>(x >> (64 - table_bits_));
+}
+
+uint32_t Dedup::at(uint32_t stream, int64_t pos) const {
+    for (uint32_t i = pos_home(stream, pos);; i = (i + 1) & table_mask_) {
+        if (at_pos_[i] == 0)
+            return kNone;
+        const Record& r = ring_[at_pos_[i] - 1];
+        if (r.pos == pos && r.stream == stream)
+            return at_pos_[i] - 1;
+    }
+}
+
+void Dedup::place(uint32_t rec) {
+    const Record& r = ring_[rec];
+    uint32_t i = pos_home(r.stream, r.pos);
+    while (at_pos_[i] != 0)
+        i = (i + 1) & table_mask_;
+    at_pos_[i] = rec + 1;
+}
+
+void Dedup::unplace(uint32_t rec) {
+    const Record& r = ring_[rec];
+    if (r.pos == kUnknownPos)
+        return;
+    uint32_t i = pos_home(r.stream, r.pos);
+    while (at_pos_[i] != rec + 1)
+        i = (i + 1) & table_mask_;
+    // Backward-shift deletion, as in the key table.
+    for (uint32_t j = (i + 1) & table_mask_; at_pos_[j] != 0; j = (j + 1) & table_mask_) {
+        const Record& moved = ring_[at_pos_[j] - 1];
+        uint32_t home = pos_home(moved.stream, moved.pos);
+        bool stays = i <= j ? (i < home && home <= j) : (i < home || home <= j);
+        if (!stays) {
+            at_pos_[i] = at_pos_[j];
+            i = j;
         }
+    }
+    at_pos_[i] = 0;
+}
+
+// --- streams and lanes ---------------------------------------------------------------------
+
+uint32_t Dedup::stream_of(uint32_t bond, uint8_t sysid, uint8_t compid) {
+    uint64_t key = uint64_t{bond + 1} << 16 | uint64_t{sysid} << 8 | compid;
+    uint32_t i = static_cast<uint32_t>((key * 0x9e3779b97f4a7c15ull) >> 54) & (kStreams - 1);
+    for (uint32_t probes = 0; probes < kStreams; probes++, i = (i + 1) & (kStreams - 1)) {
+        Stream& s = streams_[i];
+        if (s.key == key)
+            return i;
+        if (s.key == 0) {
+            if (streams_used_ * 4 >= kStreams * 3)
+                break;
+            s = Stream{};
+            s.key = key;
+            s.head = kUnknownPos;
+            streams_used_++;
+            return i;
+        }
+    }
+    untracked_sources_++;
+    if (!sources_full_logged_) {
+        sources_full_logged_ = true;
+        api_->log(host_, MAVBOND_LOG_WARNING,
+                  "too many sources: frames of new ones pass without deduplication");
+    }
+    return kNone;
+}
+
+Lane& Dedup::lane_of(const Arrival& a) {
+    Lane& lane = lanes_[size_t{a.stream} * kMaxMembers + a.member];
+    uint32_t generation = member_of(a.bond, a.member).generation;
+    if (lane.generation != generation) {  // unused, or another link's in this place
+        lane = Lane{};
+        lane.generation = generation;
+    }
+    return lane;
+}
+
+bool Dedup::after_outage(const Lane& lane, const Stream& s, uint64_t t) const {
+    if (s.head - lane.head_then >= kAmbiguousStep)
+        return true;  // the other links moved the stream that far meanwhile
+    // The link may be the one ahead of the others: its silence, at the source's rate.
+    return s.ns_per_frame != 0 &&
+           t - lane.last_t >= static_cast<uint64_t>(kAmbiguousStep) * s.ns_per_frame;
+}
+
+void Dedup::set_alignment(const Arrival& a, Lane& lane, int64_t offset) {
+    Member& m = member_of(a.bond, a.member);
+    if (lane.aligned && lane.offset != offset)
+        m.realigned++;
+    if (!lane.aligned)
+        m.aligned++;
+    lane.aligned = 1;
+    lane.offset = offset;
+    lane.contradictions = 0;
+    lane.tentative = 0;
+}
+
+void Dedup::learn_lag(Member& m, int64_t skew_ns) {
+    if (!m.lag_known) {
+        m.lag_ns = skew_ns;
+        m.lag_known = true;
         return;
     }
-    // Clamp outliers (a legitimate repeat read as a copy) so one cannot move the offset far;
-    // a real change of a link's latency is still followed, because clamped residuals raise
-    // the deviation and so the tolerance, within tens of samples.
-    int64_t tol = tolerance(p);
-    int64_t residual = std::clamp(sample - p.offset_ns, -tol, tol);
-    p.offset_ns += residual / kEwmaGain;
-    int64_t abs_res = residual < 0 ? -residual : residual;
-    p.mad_ns += (abs_res - p.mad_ns) / kEwmaGain;
-    if (p.samples < UINT32_MAX)
-        p.samples++;
+    m.lag_ns += (skew_ns - m.lag_ns) / kLagGain;
 }
 
-Dedup::Match Dedup::match(uint32_t bond, uint32_t member, uint32_t link_id, Key key, uint64_t t,
-                          bool timestamped) {
-    Match m;
-    uint32_t e = find(bond, key);
+Dedup::Verdict Dedup::copy_of(const Arrival& a, uint32_t rec) {
+    Record& r = ring_[rec];
+    r.seen |= static_cast<uint8_t>(1u << a.member);
+    Verdict v;
+    v.duplicate = true;
+    v.pos = r.pos;
+    v.first_link_id = r.first_link_id;
+    v.skew_ns = static_cast<int64_t>(a.t - r.t0);
+    if (r.first_member != a.member)
+        learn_lag(member_of(a.bond, a.member), v.skew_ns);
+    return v;
+}
+
+Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outage) {
+    Stream& s = streams_[a.stream];
+    Verdict v;
+    if (s.head == kUnknownPos) {
+        // The stream's first frame: this link's numbering becomes the bond's.
+        set_alignment(a, lane, 0);
+        v.pos = a.link_pos;
+        return v;
+    }
+    // The places the frame may have: an instance of its key this link has not had (a copy),
+    // and with key: frame, where the offset stays a whole number of turns of 256, a position
+    // no link delivered (a frame the others lost). Time chooses when there is a choice: the
+    // kernel's receive time against the first copy's, as far apart as the two links usually
+    // are; before that is known, the earliest place in a young stream (links start with the
+    // stream), else the oldest copy.
+    const Member& m = member_of(a.bond, a.member);
+    bool young = s.head - s.first_pos < 2 * 256;
+    bool by_time = m.lag_known || (outage && s.ns_per_frame != 0);
+    auto lag = [this, &a](uint32_t member) {
+        const Member& x = member_of(a.bond, member);
+        return x.lag_known ? x.lag_ns : 0;
+    };
+    int64_t best_pos = kUnknownPos, best_err = INT64_MAX;
+    uint32_t best_rec = kNone;
+    int options = 0;
+    auto consider = [&](int64_t pos, uint32_t rec, uint64_t t_first, uint32_t first_member,
+                        bool copy) {
+        options++;
+        int64_t err;
+        if (by_time)
+            err = abs64(static_cast<int64_t>(a.t - t_first) - (lag(a.member) - lag(first_member)));
+        else if (young)
+            err = pos;  // the earliest
+        else
+            err = copy ? static_cast<int64_t>(t_first) : INT64_MAX - 1;  // the oldest copy
+        if (err < best_err) {
+            best_err = err;
+            best_pos = pos;
+            best_rec = rec;
+        }
+    };
     if (e != kNone) {
         const Entry& en = entries_[e];
-        int best = -1, oldest = -1, unseen = 0;
-        int64_t best_err = INT64_MAX;
-        uint64_t oldest_t0 = UINT64_MAX;
-        for (int s = 0; s < en.count; s++) {
-            const Record& r = ring_[en.rec[s]];
-            if (r.seen & (1u << member))
-                continue;  // this link had that instance: this frame is a later one
-            unseen++;
-            int64_t skew = static_cast<int64_t>(t - r.t0);
-            const PairModel& p = pair(bond, r.first_member, member);
-            if (p.samples >= kMinSamples) {
-                int64_t err = skew - predicted_skew(p, r.first_member, member);
-                err = err < 0 ? -err : err;
-                if (err <= tolerance(p) && err < best_err) {
-                    best = s;
-                    best_err = err;
-                }
-            } else if (r.t0 < oldest_t0) {
-                // No offset yet for this pair: the oldest unseen instance is the likeliest.
-                oldest = s;
-                oldest_t0 = r.t0;
+        for (int i = 0; i < en.count; i++) {
+            const Record& r = ring_[en.rec[i]];
+            if (r.stream != a.stream || r.pos == kUnknownPos || (r.seen >> a.member & 1))
+                continue;
+            if (a.unique) {  // a key that never recurs: this is the frame, no choice to make
+                set_alignment(a, lane, r.pos - a.link_pos);
+                return copy_of(a, en.rec[i]);
+            }
+            consider(r.pos, en.rec[i], r.t0, r.first_member, true);
+        }
+    }
+    if (key_ == KeyKind::frame) {
+        // The turns of 256 within what the window still remembers of the stream (before the
+        // source's rate is known, from a turn before its first frame: another link may bring
+        // frames the first one lost).
+        int64_t lo = s.first_pos - 255;
+        if (s.ns_per_frame != 0) {
+            uint64_t since = a.t - s.head_t;
+            uint64_t left = window_ns_ > since ? window_ns_ - since : 0;
+            lo = std::max(lo, s.head - static_cast<int64_t>(left / s.ns_per_frame));
+        }
+        int64_t first = lo + ((a.link_pos - lo) % 256 + 256) % 256;  // the first turn from lo
+        for (int64_t pos = first; pos <= s.head + 255; pos += 256) {
+            if (at(a.stream, pos) != kNone)
+                continue;  // delivered: a copy of it was considered above, or another frame
+            int64_t behind = s.head - pos;  // when its first copy would have come
+            uint64_t t_first = s.head_t - static_cast<uint64_t>(behind * static_cast<int64_t>(s.ns_per_frame));
+            consider(pos, kNone, t_first, s.head_member, false);
+        }
+    }
+    if (best_pos == kUnknownPos) {
+        // A copy of a frame another link brought before it was placed: a copy still.
+        if (e != kNone) {
+            const Entry& en = entries_[e];
+            for (int i = 0; i < en.count; i++) {
+                const Record& r = ring_[en.rec[i]];
+                if (r.stream == a.stream && r.pos == kUnknownPos && !(r.seen >> a.member & 1))
+                    return copy_of(a, en.rec[i]);
             }
         }
-        int chosen = best >= 0 ? best : oldest;
-        if (chosen < 0 && timestamped && en.count == 1 && unseen == 1 && !en.recurred) {
-            // A timestamped sample's bytes never recur, so a later copy of its only instance
-            // is that instance, however late: a stalled link (a busy modem or CPU), not a new
-            // frame. Only later than the offset predicts; an early copy may be a new instance
-            // of a key that does recur (a test stream built of repeating cycles).
-            const Record& r = ring_[en.rec[0]];
-            const PairModel& p = pair(bond, r.first_member, member);
-            int64_t late = static_cast<int64_t>(t - r.t0) - predicted_skew(p, r.first_member, member);
-            if (p.samples >= kMinSamples && late > tolerance(p))
-                chosen = 0;
+        if (outage) {
+            // New, with nothing to place it by (its key's numbering restarted): it goes on from
+            // the stream's head, until a unique key says otherwise.
+            v.pos = s.head + 1;
+            set_alignment(a, lane, v.pos - a.link_pos);
+            lane.tentative = 1;
+            return v;
         }
-        if (en.count == 1 && unseen == 1) {
-            // One instance in the window and this link has not had it: whichever way the
-            // decision goes (even when it does not fit: the latency may have changed), the
-            // arrival gap is a clean sample of the pair's offset.
-            const Record& r = ring_[en.rec[0]];
-            int64_t skew = static_cast<int64_t>(t - r.t0);
-            learn(pair(bond, r.first_member, member), r.first_member < member ? skew : -skew);
-        }
-        if (chosen >= 0) {
-            Record& r = ring_[en.rec[chosen]];
-            r.seen |= static_cast<uint8_t>(1u << member);
-            m.duplicate = true;
-            m.first_link_id = r.first_link_id;
-            m.skew_ns = static_cast<int64_t>(t - r.t0);
-            return m;
-        }
+        // Not placed yet: the frame is new, and its position is learned when another link's
+        // copy of it comes (see decide()).
+        lane.aligned = 0;
+        return v;
     }
-    // A new instance. At the cap the oldest instance overall is forgotten first, which may
-    // be this key's last one: look the key up again after making room.
-    if (ring_count_ == capacity_) {
-        pop_front(true, t);
-        e = find(bond, key);
+    set_alignment(a, lane, best_pos - a.link_pos);
+    if (options > 1) {
+        lane.tentative = 1;
+        member_of(a.bond, a.member).by_time += by_time ? 1 : 0;
+    }
+    if (best_rec != kNone)
+        return copy_of(a, best_rec);
+    v.pos = best_pos;
+    return v;
+}
+
+Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
+    Lane& lane = lane_of(a);
+    Stream& s = streams_[a.stream];
+    uint32_t e = find(a.bond, key);
+    bool outage = lane.aligned && after_outage(lane, s, a.t);
+    if (!lane.aligned || outage || (flags & MAVBOND_STREAM_RESYNC))
+        return align(a, lane, e, lane.aligned);
+
+    Verdict v;
+    v.pos = a.link_pos + lane.offset;
+    uint32_t held = at(a.stream, v.pos);
+    if (held != kNone) {
+        if (ring_[held].h1 == key.h1 && ring_[held].h2 == key.h2) {
+            lane.contradictions = 0;
+            if (a.unique)
+                lane.tentative = 0;  // a unique key confirms the alignment
+            return copy_of(a, held);  // the bond delivered this very position
+        }
+        // Another frame holds this position: the alignment is wrong (a counter restarted
+        // without a run of frames to show it). Placed anew, by identity first.
+        return align(a, lane, e, true);
     }
     if (e == kNone)
-        e = insert_entry(bond, key);
-    add_instance(e, member, link_id, t);
-    return m;
+        return v;
+    const Entry& en = entries_[e];
+    int unplaced = -1, elsewhere = -1, unseen = 0;
+    for (int i = 0; i < en.count; i++) {
+        const Record& r = ring_[en.rec[i]];
+        if (r.stream != a.stream || (r.seen >> a.member & 1))
+            continue;
+        unseen++;
+        if (r.pos == kUnknownPos)
+            unplaced = i;
+        else
+            elsewhere = i;
+    }
+    if (unplaced >= 0) {
+        // The first copy came on a link not aligned yet: this one places it, and its link.
+        uint32_t rec = en.rec[unplaced];
+        Record& r = ring_[rec];
+        r.pos = v.pos;
+        place(rec);
+        Lane& first = lanes_[size_t{a.stream} * kMaxMembers + r.first_member];
+        if (first.generation == member_of(a.bond, r.first_member).generation && !first.aligned) {
+            Arrival at_first = a;
+            at_first.member = r.first_member;
+            set_alignment(at_first, first, v.pos - r.link_pos);
+        }
+        return copy_of(a, rec);
+    }
+    if (elsewhere >= 0 && a.unique && unseen == 1) {
+        // The key is unique, yet the bond has it at another position: either a new frame
+        // whose bytes happen to equal one this link lost (rare), or this link's alignment is
+        // wrong. A signature settles it at once, and so does any unique key against an
+        // alignment time chose; otherwise two such frames in a row agreeing on one do.
+        uint32_t rec = en.rec[elsewhere];
+        int64_t offset = ring_[rec].pos - a.link_pos;
+        if (a.is_signed || lane.tentative ||
+            (lane.contradictions > 0 && lane.proposed == offset)) {
+            set_alignment(a, lane, offset);
+            return copy_of(a, rec);
+        }
+        lane.contradictions = 1;
+        lane.proposed = offset;
+    }
+    return v;
+}
+
+void Dedup::note_position(const Arrival& a, Lane& lane, int64_t pos) {
+    Stream& s = streams_[a.stream];
+    if (pos != kUnknownPos) {
+        if (s.head == kUnknownPos) {
+            s.first_pos = pos;
+            s.head = pos;
+            s.head_t = a.t;
+            s.head_member = a.member;
+            s.span_pos = pos;
+            s.span_t = a.t;
+        } else if (pos > s.head) {
+            // The source's frame interval, over spans of a second (none across a silence).
+            if (a.t - s.span_t > 5 * kRateSpan) {
+                s.span_pos = pos;
+                s.span_t = a.t;
+            } else if (a.t - s.span_t >= kRateSpan) {
+                s.ns_per_frame = (a.t - s.span_t) / static_cast<uint64_t>(pos - s.span_pos);
+                s.span_pos = pos;
+                s.span_t = a.t;
+            }
+            s.head = pos;
+            s.head_t = a.t;
+            s.head_member = a.member;
+        }
+        if (lane.aligned)
+            lane.last_bond_pos = std::max(lane.last_bond_pos, pos);
+    }
+    lane.last_link_pos = std::max(lane.last_link_pos, a.link_pos);
+    lane.head_then = s.head;
+    lane.last_t = a.t;
+}
+
+void Dedup::remember(const Arrival& a, Key key, int64_t pos) {
+    // At the cap the oldest instance overall is forgotten first, which may be this key's last
+    // one: look the key up after making room.
+    if (ring_count_ == capacity_)
+        pop_front(true, a.t);
+    uint32_t e = find(a.bond, key);
+    if (e == kNone)
+        e = insert_entry(a.bond, key);
+    Record r{};
+    r.h1 = key.h1;
+    r.h2 = key.h2;
+    r.t0 = a.t;
+    r.pos = pos != kUnknownPos && at(a.stream, pos) == kNone ? pos : kUnknownPos;
+    r.link_pos = a.link_pos;
+    r.first_link_id = a.link_id;
+    r.stream = a.stream;
+    r.first_member = static_cast<uint8_t>(a.member);
+    r.seen = static_cast<uint8_t>(1u << a.member);
+    uint32_t rec = add_instance(e, r);
+    if (r.pos != kUnknownPos)
+        place(rec);
 }
 
 bool Dedup::stale(uint32_t bond, const mavbond_frame* f) {
@@ -607,30 +944,33 @@ bool Dedup::stale(uint32_t bond, const mavbond_frame* f) {
     uint64_t ts_ns = f->timestamp_us ? raw * 1000 : raw * kMs;
     uint64_t k = uint64_t{bond} << 48 | uint64_t{f->sysid} << 40 | uint64_t{f->compid} << 32 |
                  (f->msgid & 0xffffff);
-    uint32_t i = static_cast<uint32_t>((k * 0x9e3779b97f4a7c15ull) >> 52) & (kStreams - 1);
-    for (uint32_t probes = 0; streams_[i].key != k; i = (i + 1) & (kStreams - 1)) {
-        if (streams_[i].key == UINT64_MAX) {
-            if (streams_used_ * 4 >= kStreams * 3) {
-                untracked_streams_++;
-                if (!streams_full_logged_) {
-                    streams_full_logged_ = true;
+    uint32_t i = static_cast<uint32_t>((k * 0x9e3779b97f4a7c15ull) >> 52) & (kSampleStreams - 1);
+    for (uint32_t probes = 0; samples_[i].key != k; i = (i + 1) & (kSampleStreams - 1)) {
+        if (samples_[i].key == UINT64_MAX) {
+            if (samples_used_ * 4 >= kSampleStreams * 3) {
+                untracked_samples_++;
+                if (!samples_full_logged_) {
+                    samples_full_logged_ = true;
                     api_->log(host_, MAVBOND_LOG_WARNING,
                               "too many message streams: new ones are not checked for staleness");
                 }
                 return false;
             }
-            streams_[i].key = k;
-            streams_[i].newest_ns = ts_ns;
-            streams_used_++;
+            samples_[i].key = k;
+            samples_[i].newest_ns = ts_ns;
+            samples_used_++;
             return false;
         }
-        if (++probes == kStreams)
+        if (++probes == kSampleStreams)
             return false;
     }
-    Stream& s = streams_[i];
-    if (ts_ns < s.newest_ns && s.newest_ns - ts_ns <= reboot_jump_ns_)
-        return true;
-    // Newer, equal, or so much older that the source restarted its clock.
+    SampleStream& s = samples_[i];
+    if (ts_ns < s.newest_ns) {
+        uint64_t behind = s.newest_ns - ts_ns;
+        if (behind <= reboot_jump_ns_)
+            return behind > stale_after_ns_;  // late, and by how much decides
+    }
+    // Newer, or so much older that the source restarted its clock.
     s.newest_ns = ts_ns;
     return false;
 }
@@ -644,20 +984,20 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
     if (!from || !in_scope(from))
         return MAVBOND_PASS;
     uint64_t t = f->rx_time_ns ? f->rx_time_ns : api_->now_ns(host_);
-    // Links are read in batches, each stamped once: keep time monotonic across them.
+    // Arrivals come in order; a stream endpoint's read time may trail a datagram's kernel time.
     if (t < clock_ns_)
         t = clock_ns_;
     clock_ns_ = t;
 
     uint32_t bond = from->bond_id;
     uint32_t member = from->priority;
-    Member& mem = members_[bond * kMaxMembers + member];
+    Member& mem = member_of(bond, member);
     if (mem.link_id != from->id) {
-        // Another link took this place in the bond: its latencies are its own.
+        // Another link took this place in the bond: its lanes and lag are its own.
+        uint32_t generation = mem.generation + 1;
         mem = Member{};
         mem.link_id = from->id;
-        for (uint32_t other = 0; other < kMaxMembers; other++)
-            pair(bond, member, other) = PairModel{};
+        mem.generation = generation;
     }
 
     if (window_ns_ > 0) {
@@ -668,15 +1008,27 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
             notes->hash[1] = key.h2;
         }
         expire(t);
-        Match m = match(bond, member, from->id, key, t, f->timestamp_offset >= 0);
-        if (m.duplicate) {
-            if (notes) {
-                notes->flags |= MAVBOND_NOTE_DUPLICATE;
-                notes->first_link_id = m.first_link_id;
-                notes->skew_ns = m.skew_ns;
+        bool is_signed = key_ == KeyKind::frame && (f->incompat_flags & 0x01) != 0;
+        Arrival a{bond, member, from->id, stream_of(bond, f->sysid, f->compid), f->stream_pos, t,
+                  is_signed, is_signed || f->timestamp_offset >= 0};
+        if (a.stream != kNone && !(f->stream_flags & MAVBOND_STREAM_UNTRACKED)) {
+            Verdict v = decide(a, key, f->stream_flags);
+            Lane& lane = lane_of(a);
+            note_position(a, lane, v.pos);
+            if (notes && v.pos != kUnknownPos) {
+                notes->flags |= MAVBOND_NOTE_POSITION;
+                notes->bond_pos = v.pos;
             }
-            mem.duplicates++;
-            return MAVBOND_DROP;
+            if (v.duplicate) {
+                if (notes) {
+                    notes->flags |= MAVBOND_NOTE_DUPLICATE;
+                    notes->first_link_id = v.first_link_id;
+                    notes->skew_ns = v.skew_ns;
+                }
+                mem.duplicates++;
+                return MAVBOND_DROP;
+            }
+            remember(a, key, v.pos);
         }
     }
     if (drop_stale_ && stale(bond, f)) {
@@ -688,6 +1040,8 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
     mem.passed++;
     return MAVBOND_PASS;
 }
+
+// --- status --------------------------------------------------------------------------------
 
 void append_json_string(std::string& out, const char* s) {
     out += '"';
@@ -710,18 +1064,14 @@ void append_json_string(std::string& out, const char* s) {
 std::string Dedup::status() const {
     const mavbond_link* links[256];
     size_t n = std::min<size_t>(api_->links(host_, links, 256), 256);
-    auto link_of = [&](uint32_t id) -> const mavbond_link* {
-        for (size_t i = 0; i < n; i++) {
-            if (links[i]->id == id)
-                return links[i];
-        }
-        return nullptr;
-    };
     auto name_of = [&](uint32_t id) {
-        const mavbond_link* l = link_of(id);
-        return l && l->name ? l->name : "?";
+        for (size_t i = 0; i < n; i++) {
+            if (links[i]->id == id && links[i]->name)
+                return links[i]->name;
+        }
+        return "?";
     };
-    char num[96];
+    char num[160];
     std::string out = "{";
     std::snprintf(num, sizeof num, "\"window_ms\":%.1f,", static_cast<double>(window_ns_) / kMs);
     out += num;
@@ -731,51 +1081,35 @@ std::string Dedup::status() const {
     out += kKeyNames[static_cast<int>(key_)];
     out += "\",";
     std::snprintf(num, sizeof num,
-                  "\"drop_stale\":%s,\"entries\":%u,\"instances\":%u,\"max_entries\":%u,",
-                  drop_stale_ ? "true" : "false", fresh_ - free_count_, ring_count_, capacity_);
+                  "\"drop_stale\":%s,\"stale_after_ms\":%.1f,\"entries\":%u,\"instances\":%u,"
+                  "\"max_entries\":%u,",
+                  drop_stale_ ? "true" : "false", static_cast<double>(stale_after_ns_) / kMs,
+                  fresh_ - free_count_, ring_count_, capacity_);
     out += num;
-    std::snprintf(num, sizeof num, "\"evicted_early\":%" PRIu64 ",\"untracked_streams\":%" PRIu64
-                  ",\"links\":[", evicted_early_, untracked_streams_);
+    std::snprintf(num, sizeof num,
+                  "\"evicted_early\":%" PRIu64 ",\"untracked_sources\":%" PRIu64
+                  ",\"untracked_streams\":%" PRIu64 ",\"links\":[",
+                  evicted_early_, untracked_sources_, untracked_samples_);
     out += num;
     bool first = true;
-    for (uint32_t b = 0; b < kMaxBonds; b++) {
-        for (uint32_t m = 0; m < kMaxMembers; m++) {
-            const Member& mem = members_[b * kMaxMembers + m];
-            if (mem.link_id == kNone)
-                continue;
-            out += first ? "{\"name\":" : ",{\"name\":";
-            first = false;
-            append_json_string(out, name_of(mem.link_id));
-            std::snprintf(num, sizeof num,
-                          ",\"passed\":%" PRIu64 ",\"duplicates\":%" PRIu64 ",\"stale\":%" PRIu64
-                          "}",
-                          mem.passed, mem.duplicates, mem.stale);
-            out += num;
-        }
-    }
-    out += "],\"offsets\":[";
-    first = true;
-    for (uint32_t b = 0; b < kMaxBonds; b++) {
-        for (uint32_t lo = 0; lo < kMaxMembers; lo++) {
-            for (uint32_t hi = lo + 1; hi < kMaxMembers; hi++) {
-                const PairModel& p = pairs_[(b * kMaxMembers + lo) * kMaxMembers + hi];
-                const Member& a = members_[b * kMaxMembers + lo];
-                const Member& c = members_[b * kMaxMembers + hi];
-                if (p.samples == 0 || a.link_id == kNone || c.link_id == kNone)
-                    continue;
-                // Shown as "to is offset_ms behind from" (negative: ahead).
-                out += first ? "{\"from\":" : ",{\"from\":";
-                first = false;
-                append_json_string(out, name_of(a.link_id));
-                out += ",\"to\":";
-                append_json_string(out, name_of(c.link_id));
-                std::snprintf(num, sizeof num,
-                              ",\"offset_ms\":%.1f,\"deviation_ms\":%.1f,\"samples\":%u}",
-                              static_cast<double>(p.offset_ns) / kMs,
-                              static_cast<double>(p.mad_ns) / kMs, p.samples);
-                out += num;
-            }
-        }
+    for (const Member& mem : members_) {
+        if (mem.link_id == kNone)
+            continue;
+        out += first ? "{\"name\":" : ",{\"name\":";
+        first = false;
+        append_json_string(out, name_of(mem.link_id));
+        std::snprintf(num, sizeof num,
+                      ",\"passed\":%" PRIu64 ",\"duplicates\":%" PRIu64 ",\"stale\":%" PRIu64
+                      ",\"aligned\":%" PRIu64 ",\"aligned_by_time\":%" PRIu64
+                      ",\"realigned\":%" PRIu64 ",\"lag_ms\":",
+                      mem.passed, mem.duplicates, mem.stale, mem.aligned, mem.by_time,
+                      mem.realigned);
+        out += num;
+        if (mem.lag_known)
+            std::snprintf(num, sizeof num, "%.1f}", static_cast<double>(mem.lag_ns) / kMs);
+        else
+            std::snprintf(num, sizeof num, "null}");
+        out += num;
     }
     out += "]}";
     return out;
@@ -800,6 +1134,13 @@ void Dedup::metrics(MetricOut& out) const {
                     mem.duplicates, labels);
         out.counter("stale", "Samples older than one already delivered that dedup dropped.",
                     mem.stale, labels);
+        out.counter("alignments",
+                    "A link's numbering of a source aligned to the bond's (one per source, more "
+                    "after outages).",
+                    mem.aligned, labels);
+        out.counter("realignments",
+                    "A link's alignment replaced (an outage, a restarted sequence counter).",
+                    mem.realigned, labels);
     }
     out.gauge("entries", "Frames remembered in the window now.",
               static_cast<double>(fresh_ - free_count_));
@@ -810,12 +1151,15 @@ void Dedup::metrics(MetricOut& out) const {
                 evicted_early_);
     out.counter("untracked_streams",
                 "Timestamped frames not checked for staleness: too many streams.",
-                untracked_streams_);
+                untracked_samples_);
+    out.counter("untracked_sources",
+                "Frames passed without deduplication: too many sources in the bonds.",
+                untracked_sources_);
 }
 
 }  // namespace
 
-MAVBOND_FILTER_PLUGIN(Dedup, "dedup", "0.1.0",
+MAVBOND_FILTER_PLUGIN(Dedup, "dedup", "0.2.0",
                       "drops copies of a frame that already arrived on another link of the bond",
                       kOptions)
 

@@ -6,11 +6,14 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <cctype>
 #include <cstdlib>
+#include <functional>
 #include <map>
 #include <new>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "fake_host.h"
@@ -92,7 +95,7 @@ Bytes attitude_payload(uint32_t time_boot_ms, uint8_t salt = 0) {
 }
 
 class DedupTest : public ::testing::Test {
-protected:
+public:  // the simulations below feed through it
     void SetUp() override {
         plugin_ = mavbond_plugin_entry();
         a_ = &host_.add_link("a", "vehicle");
@@ -104,26 +107,11 @@ protected:
         return self_ != nullptr;
     }
 
-    /// Hands `raw` to the plugin as received on `link` at `t_ns` (0: the host's clock).
+    /// Hands `raw` to the plugin as received on `link` at `t_ns` (0: the host's clock), as
+    /// the daemon would: the link's stream position tracked by the host.
     mavbond_verdict feed(const mavbond_link& link, const Bytes& raw, uint64_t t_ns = 0,
                          mavbond_frame_notes* notes_out = nullptr, uint32_t note_flags = 0) {
-        mavbond_frame f = host_.frame(raw);
-        bool is_v2 = raw[0] == 0xFD;
-        size_t header = is_v2 ? 10 : 6;
-        f.version = is_v2 ? 2 : 1;
-        f.crc_checked = 1;
-        f.seq = raw[is_v2 ? 4 : 2];
-        f.sysid = raw[is_v2 ? 5 : 3];
-        f.compid = raw[is_v2 ? 6 : 4];
-        f.msgid = is_v2 ? (raw[7] | raw[8] << 8 | raw[9] << 16) : raw[5];
-        f.payload = raw.data() + header;
-        f.payload_len = raw[1];
-        if (f.msgid == kAttitude) {
-            f.timestamp_offset = 0;
-            f.timestamp_size = 4;
-        }
-        if (t_ns)
-            f.rx_time_ns = t_ns;
+        mavbond_frame f = host_.frame(raw, link, t_ns);
         mavbond_frame_notes notes{};
         notes.struct_size = sizeof notes;
         notes.flags = note_flags;
@@ -151,57 +139,105 @@ protected:
 };
 
 TEST_F(DedupTest, CopyFromAnotherLinkIsDropped) {
-    ASSERT_TRUE(create("window: 500ms")) << host_.last_error();
+    ASSERT_TRUE(create("window: 500ms"));
     Bytes f = v2(7, kHeartbeat, heartbeat_payload());
     mavbond_frame_notes notes{};
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, now(), &notes));
     EXPECT_TRUE(notes.flags & MAVBOND_NOTE_HASHED);
     EXPECT_FALSE(notes.flags & MAVBOND_NOTE_DUPLICATE);
+    ASSERT_TRUE(notes.flags & MAVBOND_NOTE_POSITION);
+    EXPECT_EQ(7, notes.bond_pos);  // the first link's numbering is the bond's
     uint64_t first_hash = notes.hash[0];
     EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, now() + 40 * kMs, &notes));
     EXPECT_TRUE(notes.flags & MAVBOND_NOTE_DUPLICATE);
     EXPECT_EQ(first_hash, notes.hash[0]);
     EXPECT_EQ(a_->id, notes.first_link_id);
     EXPECT_EQ(static_cast<int64_t>(40 * kMs), notes.skew_ns);
+    EXPECT_EQ(7, notes.bond_pos);
     std::string s = status();
     EXPECT_NE(std::string::npos, s.find("\"name\":\"a\",\"passed\":1,\"duplicates\":0")) << s;
     EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":0,\"duplicates\":1")) << s;
 }
 
-TEST_F(DedupTest, RepeatOnTheSameLinkPasses) {
-    ASSERT_TRUE(create("window: 5s"));
-    Bytes f = v2(7, kHeartbeat, heartbeat_payload());
+TEST_F(DedupTest, TheSameBytes256FramesLaterAreANewFrame) {
+    // One cycle of 256 frames, sent twice: frame k of the second cycle is byte for byte frame
+    // k of the first. Link b brings every frame 300 ms late (1,000 frames/s): when its copy of
+    // the first cycle's frame k comes, a has already delivered the second cycle's. Link a lost
+    // the first cycle's frame 10 and the second's frame 20, b lost the first's 30.
+    ASSERT_TRUE(create("window: 2s"));
+    std::vector<Bytes> cycle;
+    for (int k = 0; k < 256; k++)
+        cycle.push_back(v2(static_cast<uint8_t>(k), kHeartbeat, heartbeat_payload()));
     uint64_t t = now();
-    // The same bytes 256 frames later on the same link: a new frame, not a copy.
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t + 256 * kMs));
-    // Link b delivers its copies of both: both are duplicates.
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 30 * kMs));
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 286 * kMs));
-    // A third on b, with no instance left that b has not had: new.
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, f, t + 512 * kMs));
+    std::vector<std::tuple<uint64_t, const mavbond_link*, int>> arrivals;
+    for (int i = 0; i < 512; i++) {
+        if (i != 10 && i != 256 + 20)
+            arrivals.emplace_back(t + i * kMs, a_, i);
+        if (i != 30)
+            arrivals.emplace_back(t + i * kMs + 300 * kMs, b_, i);
+    }
+    std::stable_sort(arrivals.begin(), arrivals.end(),
+                     [](const auto& x, const auto& y) { return std::get<0>(x) < std::get<0>(y); });
+    std::vector<int> delivered(512, 0);
+    for (const auto& [at, link, i] : arrivals) {
+        if (feed(*link, cycle[i % 256], at) == MAVBOND_PASS)
+            delivered[i]++;
+    }
+    for (int i = 0; i < 512; i++)
+        EXPECT_EQ(1, delivered[i]) << "frame " << i;
 }
 
-TEST_F(DedupTest, AStalledCopyOfATimestampedSampleIsStillACopy) {
-    // Teach the pair a 30 ms offset, then stall link b by 400 ms: far outside the tolerance.
-    // A timestamped sample never recurs, so its late copy is still recognised and dropped
-    // (and drop_stale stays out of it: off here). A frame without a timestamp, which may
-    // recur, is not matched that far off its offset: the copy passes (fail open). That an
-    // early copy is never taken this way is what the heavy_loss scenario below proves.
-    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
-    uint64_t t = now();
-    for (uint32_t i = 0; i < 16; i++) {
-        Bytes f = v2(static_cast<uint8_t>(i), kAttitude, attitude_payload(i));
-        ASSERT_EQ(MAVBOND_PASS, feed(*a_, f, t + i * 10 * kMs));
-        ASSERT_EQ(MAVBOND_DROP, feed(*b_, f, t + i * 10 * kMs + 30 * kMs));
+TEST_F(DedupTest, ContentKeyMatchesStreamsWithTheirOwnSequence) {
+    ASSERT_TRUE(create("window: 1s\nkey: content"));
+    Bytes p = attitude_payload(5000);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(200, kAttitude, p)));
+    // v1 with its zeros against v2 with the zeros truncated: one message.
+    Bytes hb = heartbeat_payload();
+    hb[8] = 0;
+    Bytes truncated(hb.begin(), hb.end() - 1);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v1(11, 0, hb)));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(201, kHeartbeat, truncated)));
+    // Another sender is another message.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(202, kAttitude, p, 2)));
+}
+
+TEST_F(DedupTest, ContentKeyTellsRecurringContentApartByPosition) {
+    // Two autopilot ports with their own counters (b = a + 77), the same HEARTBEAT content
+    // every 10 frames (as every second at 10 frames/s), 5% loss on each, b 15 ms behind.
+    // Each heartbeat is a frame of its own: its content recurs, its position does not.
+    ASSERT_TRUE(create("window: 2s\nkey: content"));
+    std::mt19937_64 rng(6);
+    std::bernoulli_distribution lost(0.05);
+    std::vector<int> delivered(2000, 0), reached(2000, 0);
+    std::vector<std::tuple<uint64_t, int, int>> arrivals;
+    for (int i = 0; i < 2000; i++) {
+        uint64_t t = now() + i * 10 * kMs;
+        bool la = i > 0 && lost(rng), lb = lost(rng);
+        if (!la)
+            arrivals.emplace_back(t, 0, i);
+        if (!lb)
+            arrivals.emplace_back(t + 15 * kMs, 1, i);
+        reached[i] = !(la && lb);
     }
-    t += 200 * kMs;
-    Bytes sample = v2(20, kAttitude, attitude_payload(500));
-    Bytes heartbeat = v2(21, kHeartbeat, heartbeat_payload());
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, sample, t));
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, heartbeat, t));
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, sample, t + 430 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, heartbeat, t + 430 * kMs));
+    std::stable_sort(arrivals.begin(), arrivals.end(),
+                     [](const auto& x, const auto& y) { return std::get<0>(x) < std::get<0>(y); });
+    for (const auto& [t, link, i] : arrivals) {
+        uint8_t seq = static_cast<uint8_t>(i + (link ? 77 : 0));
+        Bytes f = i % 10 == 0 ? v2(seq, kHeartbeat, heartbeat_payload())
+                              : v2(seq, kAttitude, attitude_payload(static_cast<uint32_t>(i)));
+        if (feed(link ? *b_ : *a_, f, t) == MAVBOND_PASS)
+            delivered[i]++;
+    }
+    for (int i = 0; i < 2000; i++)
+        EXPECT_EQ(reached[i], delivered[i]) << "frame " << i;
+}
+
+TEST_F(DedupTest, FrameKeyKeepsSequenceApart) {
+    ASSERT_TRUE(create("window: 1s\nkey: frame"));
+    Bytes p = attitude_payload(5000);
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(200, kAttitude, p)));
 }
 
 TEST_F(DedupTest, CopyAfterTheWindowPasses) {
@@ -267,27 +303,38 @@ TEST_F(DedupTest, DroppedFramesAreNotRemembered) {
     EXPECT_NE(std::string::npos, s.find("\"name\":\"a\",\"passed\":0,\"duplicates\":1")) << s;
 }
 
-TEST_F(DedupTest, ContentKeyMatchesStreamsWithTheirOwnSequence) {
-    ASSERT_TRUE(create("window: 1s\nkey: content"));
-    Bytes p = attitude_payload(5000);
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(200, kAttitude, p)));
-    // v1 with its zeros against v2 with the zeros truncated: one message.
-    Bytes hb = heartbeat_payload();
-    hb[8] = 0;
-    Bytes truncated(hb.begin(), hb.end() - 1);
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v1(11, 0, hb)));
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(201, kHeartbeat, truncated)));
-    // Another sender is another message.
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(202, kAttitude, p, 2)));
+class DedupStrayFrameTest : public DedupTest, public ::testing::WithParamInterface<bool> {};
+
+TEST_P(DedupStrayFrameTest, AStrayFrameOnOneLinkDoesNotShiftTheCopiesAfterIt) {
+    // Link b carries one frame of the source nobody else has, numbered 80 ahead (a frame of
+    // another sender using the same ids): b's numbering jumps, then comes back. The copies
+    // after it are still recognised: by their position while the host calls them repeats,
+    // by identity once it follows the restarted numbering. With signing, the signature
+    // (link id, 48-bit timestamp) alone makes each frame unique.
+    bool sign = GetParam();
+    ASSERT_TRUE(create("window: 2s"));
+    auto frame = [sign](uint8_t seq, uint32_t i) {
+        Bytes f = v2(seq, kAttitude, attitude_payload(i));
+        if (sign) {
+            f[2] = 0x01;  // signed: link id, 6-byte timestamp, 6-byte signature follow
+            for (int k = 0; k < 13; k++)
+                f.push_back(static_cast<uint8_t>(i * 13 + k));
+        }
+        return f;
+    };
+    uint64_t t = now();
+    for (uint32_t i = 0; i < 40; i++)
+        EXPECT_EQ(MAVBOND_PASS, feed(*a_, frame(static_cast<uint8_t>(i), i), t + i * kMs));
+    for (uint32_t i = 0; i < 20; i++)
+        EXPECT_EQ(MAVBOND_DROP, feed(*b_, frame(static_cast<uint8_t>(i), i), t + 50 * kMs + i * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(100, kHeartbeat, heartbeat_payload()), t + 70 * kMs));
+    for (uint32_t i = 20; i < 40; i++)
+        EXPECT_EQ(MAVBOND_DROP, feed(*b_, frame(static_cast<uint8_t>(i), i), t + 71 * kMs + i * kMs))
+            << "copy " << i;
 }
 
-TEST_F(DedupTest, FrameKeyKeepsSequenceApart) {
-    ASSERT_TRUE(create("window: 1s\nkey: frame"));
-    Bytes p = attitude_payload(5000);
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(10, kAttitude, p)));
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(200, kAttitude, p)));
-}
+INSTANTIATE_TEST_SUITE_P(Signing, DedupStrayFrameTest, ::testing::Values(false, true),
+                         [](const auto& p) { return p.param ? "signed" : "unsigned"; });
 
 TEST_F(DedupTest, Murmur3_32ReproducesThePaperSettings) {
     ASSERT_TRUE(create("hash: murmur3_32\nwindow: 5s\ndrop_stale: false")) << host_.last_error();
@@ -299,37 +346,43 @@ TEST_F(DedupTest, Murmur3_32ReproducesThePaperSettings) {
     EXPECT_NE(std::string::npos, status().find("\"hash\":\"murmur3_32\""));
 }
 
-TEST_F(DedupTest, StaleSampleIsDroppedTimestamplessNever) {
-    ASSERT_TRUE(create("window: 1s"));
+TEST_F(DedupTest, StaleMeansLateEnoughToMatter) {
+    ASSERT_TRUE(create("window: 1s\nstale_after: 250ms"));
     uint64_t t = now();
     mavbond_frame_notes notes{};
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(2000)), t));
-    // b's sample from 500 ms earlier (a lost it): delivering it would move the vehicle back.
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(0, kAttitude, attitude_payload(1500)), t + kMs, &notes));
+    // b's sample from 30 ms before (a lost it): a few centimetres on the map, delivered.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(0, kAttitude, attitude_payload(1970)), t + kMs));
+    // 250 ms behind, the tolerance itself: delivered.
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(2, kAttitude, attitude_payload(1750)), t + 2 * kMs));
+    // 500 ms behind: it would move the vehicle back on the map.
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(3, kAttitude, attitude_payload(1500)), t + 3 * kMs, &notes));
     EXPECT_TRUE(notes.flags & MAVBOND_NOTE_STALE);
     EXPECT_FALSE(notes.flags & MAVBOND_NOTE_DUPLICATE);
     // The same time from another sender, or a newer one, passes.
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(2, kAttitude, attitude_payload(1500), 2), t + 2 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(3, kAttitude, attitude_payload(2001)), t + 3 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(4, kAttitude, attitude_payload(1500), 2), t + 4 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(5, kAttitude, attitude_payload(2001)), t + 5 * kMs));
     // Messages without a timestamp are never late, whatever order they come in.
-    for (uint8_t seq = 10; seq > 0; seq--)
-        EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(seq, kHeartbeat, heartbeat_payload()), t + 4 * kMs));
+    for (uint8_t seq = 20; seq > 10; seq--)
+        EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(seq, kHeartbeat, heartbeat_payload()), t + 6 * kMs));
     // The autopilot reboots: time_boot_ms starts again near 0.
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(0, kAttitude, attitude_payload(50000), 1, 1), t + 5 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(100)), t + 6 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(2, kAttitude, attitude_payload(200)), t + 7 * kMs));
-    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(3, kAttitude, attitude_payload(150)), t + 8 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(2, kAttitude, attitude_payload(50000)), t + 7 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(3, kAttitude, attitude_payload(100)), t + 8 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(4, kAttitude, attitude_payload(1000)), t + 9 * kMs));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(21, kAttitude, attitude_payload(150)), t + 10 * kMs));
     std::string s = status();
-    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":12,\"duplicates\":0,\"stale\":2"))
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":14,\"duplicates\":0,\"stale\":2"))
         << s;
+    EXPECT_NE(std::string::npos, s.find("\"stale_after_ms\":250.0")) << s;
 }
 
-TEST_F(DedupTest, TruncatedTimestampReadsAsZero) {
-    ASSERT_TRUE(create("window: 1s"));
+TEST_F(DedupTest, StaleAfterZeroDropsAnyOlderSample) {
+    ASSERT_TRUE(create("window: 1s\nstale_after: 0s"));
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(1, kAttitude, attitude_payload(1000))));
     // A v2 payload cut to 2 bytes: time_boot_ms = 0x00000102 ms, 1000 - 258 ms back.
     Bytes p = attitude_payload(0x0102);
-    EXPECT_EQ(MAVBOND_DROP, feed(*a_, v2(2, kAttitude, Bytes(p.begin(), p.begin() + 2))));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(2, kAttitude, Bytes(p.begin(), p.begin() + 2))));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(3, kAttitude, attitude_payload(999))));
 }
 
 TEST_F(DedupTest, DropStaleOff) {
@@ -356,6 +409,8 @@ TEST_F(DedupTest, BadOptionValuesNameFileLineColumn) {
     EXPECT_NE(std::string::npos, host_.last_error().find("option 'max_entries'"));
     EXPECT_FALSE(create("window: soon"));
     EXPECT_NE(std::string::npos, host_.last_error().find("'window'")) << host_.last_error();
+    EXPECT_FALSE(create("stale_after: -5ms"));
+    EXPECT_NE(std::string::npos, host_.last_error().find("'stale_after'")) << host_.last_error();
 }
 
 TEST_F(DedupTest, UnknownOptionIsRejectedByTheHost) {
@@ -370,23 +425,27 @@ TEST_F(DedupTest, DescriptorDeclaresOptionsWithDefaultsAndHelp) {
         EXPECT_NE(nullptr, o->default_value) << o->key;
         EXPECT_NE(nullptr, o->help) << o->key;
     }
-    EXPECT_EQ(5, n);
+    EXPECT_EQ(6, n);
     EXPECT_STREQ("dedup", plugin_->name);
     EXPECT_EQ(MAVBOND_PLUGIN_ABI_VERSION, plugin_->abi_version);
     ASSERT_TRUE(create(""));  // every default is valid
     EXPECT_NE(std::string::npos, status().find("\"window_ms\":2000.0")) << status();
+    EXPECT_NE(std::string::npos, status().find("\"stale_after_ms\":250.0")) << status();
 }
 
 // --- simulations ---------------------------------------------------------------------------
 
-/// A source sending `count` frames at `rate` per second: every 8th is a HEARTBEAT whose bytes
-/// repeat every 256 frames (the sequence byte wraps), the others carry a unique timestamp.
-std::vector<Bytes> source_stream(int count) {
+/// A source's frames: every 8th a HEARTBEAT whose bytes repeat every 256 frames (the sequence
+/// byte wraps), the others a unique timestamped sample; `periodic`: every frame repeats every
+/// 256 (no frame is unique: only positions tell instances apart).
+std::vector<Bytes> source_stream(int count, bool periodic = false) {
     std::vector<Bytes> frames;
     frames.reserve(count);
     for (int i = 0; i < count; i++) {
         auto seq = static_cast<uint8_t>(i);
-        if (i % 8 == 0)
+        if (periodic)
+            frames.push_back(v2(seq, kHeartbeat, heartbeat_payload()));
+        else if (i % 8 == 0)
             frames.push_back(v2(seq, kHeartbeat, heartbeat_payload()));
         else
             frames.push_back(v2(seq, kAttitude, attitude_payload(static_cast<uint32_t>(i))));
@@ -396,7 +455,7 @@ std::vector<Bytes> source_stream(int count) {
 
 struct Arrival {
     uint64_t t;
-    int link;    // 0: a, 1: b
+    int link;    // index into the links of the run
     int source;  // index of the source frame
 };
 
@@ -404,9 +463,11 @@ struct LinkModel {
     uint64_t delay_ns;
     uint64_t jitter_ns;
     double loss;
+    bool reorder = false;  // jitter may reorder (an LTE modem); else a link keeps its order
+    std::pair<int, int> outage = {0, 0};  // frames [first, last) lost in a row
 };
 
-/// Arrivals of every source frame over each link, in time order (each link keeps its order).
+/// Arrivals of every source frame over each link, in time order.
 std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
                               const std::vector<LinkModel>& links, uint32_t seed) {
     std::mt19937_64 rng(seed);
@@ -417,10 +478,13 @@ std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
         uint64_t last = 0;
         for (int i = 0; i < count; i++) {
             uint64_t t = start + i * period_ns + links[l].delay_ns + jitter(rng);
-            if (lost(rng))
+            bool gone = lost(rng);
+            if (gone || (i >= links[l].outage.first && i < links[l].outage.second))
                 continue;
-            t = std::max(t, last);
-            last = t;
+            if (!links[l].reorder) {
+                t = std::max(t, last);
+                last = t;
+            }
             out.push_back({t, l, i});
         }
     }
@@ -431,44 +495,54 @@ std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
 
 struct Outcome {
     int sent = 0, arrivals = 0, lost_on_all = 0, expected = 0, delivered = 0;
-    int legit_dropped = 0;     // instances received but not delivered (multiset)
-    int duplicates_passed = 0;  // deliveries beyond the instances received (multiset)
-    int wrong_verdicts = 0;    // arrivals whose verdict differs from first-copy-passes
+    int legit_dropped = 0;      // frames some link brought that were not delivered
+    int duplicates_passed = 0;  // deliveries beyond one per frame
+    int wrong_verdicts = 0;     // arrivals whose verdict differs from first-copy-passes
 };
 
-Outcome run(DedupTest& t, const std::vector<Bytes>& frames, const std::vector<Arrival>& arrivals,
+/// Feeds the arrivals and judges by identity: frame i (an index, not its bytes) must be
+/// delivered once if some link brought it, never otherwise.
+Outcome run(const std::vector<Bytes>& frames, const std::vector<Arrival>& arrivals,
             const std::vector<const mavbond_link*>& links,
             const std::function<mavbond_verdict(const mavbond_link&, const Bytes&, uint64_t)>& feed) {
-    (void)t;
     Outcome o;
     o.sent = static_cast<int>(frames.size());
     o.arrivals = static_cast<int>(arrivals.size());
-    std::vector<int> copies(frames.size(), 0);
-    std::map<Bytes, int> expected, delivered;
+    std::vector<int> copies(frames.size(), 0), delivered(frames.size(), 0);
     for (const Arrival& a : arrivals) {
         bool first = copies[a.source]++ == 0;
-        if (first)
-            expected[frames[a.source]]++;
         mavbond_verdict v = feed(*links[a.link], frames[a.source], a.t);
         if (v == MAVBOND_PASS) {
-            delivered[frames[a.source]]++;
+            delivered[a.source]++;
             o.delivered++;
         }
-        if ((v == MAVBOND_PASS) != first)
+        if ((v == MAVBOND_PASS) != first) {
+            // MAVBOND_TRACE=N prints the first N verdicts that are off, for a closer look.
+            static const int trace = std::getenv("MAVBOND_TRACE") ? std::atoi(std::getenv("MAVBOND_TRACE")) : 0;
+            if (o.wrong_verdicts < trace)
+                std::printf("off: frame %d seq %d on link %d at %.3f ms: %s (copy %d)\n", a.source,
+                            frames[a.source][4], a.link, static_cast<double>(a.t % 100000000000ull) / 1e6,
+                            v == MAVBOND_PASS ? "passed" : "dropped", copies[a.source]);
             o.wrong_verdicts++;
+        }
     }
-    for (int c : copies)
-        o.lost_on_all += c == 0;
-    for (const auto& [bytes, n] : expected) {
-        o.expected += n;
-        int d = delivered.count(bytes) ? delivered[bytes] : 0;
-        o.legit_dropped += std::max(0, n - d);
-    }
-    for (const auto& [bytes, n] : delivered) {
-        int e = expected.count(bytes) ? expected[bytes] : 0;
-        o.duplicates_passed += std::max(0, n - e);
+    for (size_t i = 0; i < frames.size(); i++) {
+        o.lost_on_all += copies[i] == 0;
+        o.expected += copies[i] > 0;
+        o.legit_dropped += copies[i] > 0 && delivered[i] == 0;
+        o.duplicates_passed += std::max(0, delivered[i] - 1);
     }
     return o;
+}
+
+Outcome simulate_and_run(DedupTest& t, int count, const std::vector<LinkModel>& models,
+                         std::vector<const mavbond_link*> links, uint32_t seed,
+                         bool periodic = false) {
+    auto frames = source_stream(count, periodic);
+    auto arrivals = simulate(count, t.now(), kMs, models, seed);
+    return run(frames, arrivals, links, [&t](const mavbond_link& l, const Bytes& f, uint64_t at) {
+        return t.feed(l, f, at);
+    });
 }
 
 class DedupSkewTest : public DedupTest, public ::testing::WithParamInterface<int> {};
@@ -476,11 +550,8 @@ class DedupSkewTest : public DedupTest, public ::testing::WithParamInterface<int
 TEST_P(DedupSkewTest, EveryCopyDroppedNoOriginalDropped) {
     ASSERT_TRUE(create("window: 3s\ndrop_stale: false"));
     uint64_t skew = static_cast<uint64_t>(GetParam()) * kMs;
-    auto frames = source_stream(10000);
-    auto arrivals = simulate(10000, now(), kMs,
-                             {{5 * kMs, 2 * kMs, 0.0}, {5 * kMs + skew, 2 * kMs, 0.0}}, 7);
-    Outcome o = run(*this, frames, arrivals, {a_, b_},
-                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    Outcome o = simulate_and_run(*this, 10000, {{5 * kMs, 2 * kMs, 0.0}, {5 * kMs + skew, 2 * kMs, 0.0}},
+                                 {a_, b_}, 7);
     EXPECT_EQ(10000, o.delivered);
     EXPECT_EQ(0, o.legit_dropped);
     EXPECT_EQ(0, o.duplicates_passed);
@@ -493,12 +564,8 @@ TEST_F(DedupTest, LossOnBothLinksDropsNoLegitimateFrameAndPassesNoCopy) {
     // 1000 frames/s, identical HEARTBEATs every 256 frames, b 300 ms behind a, 5% independent
     // loss on each: a link's k-th arrival of some bytes is often not the k-th instance.
     ASSERT_TRUE(create("window: 1s\ndrop_stale: false"));
-    const int count = 60000;
-    auto frames = source_stream(count);
-    auto arrivals = simulate(count, now(), kMs,
-                             {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}}, 20240611);
-    Outcome o = run(*this, frames, arrivals, {a_, b_},
-                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    Outcome o = simulate_and_run(*this, 60000, {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}},
+                                 {a_, b_}, 20240611);
     std::printf("loss case: %d frames sent, %d arrivals, %d lost on both links (%.3f%%), "
                 "%d expected, %d delivered, %d legitimate dropped, %d copies passed, "
                 "%d verdicts off\n",
@@ -510,13 +577,16 @@ TEST_F(DedupTest, LossOnBothLinksDropsNoLegitimateFrameAndPassesNoCopy) {
     EXPECT_EQ(0, o.legit_dropped);
     EXPECT_EQ(0, o.duplicates_passed);
     EXPECT_EQ(0, o.wrong_verdicts);
-    EXPECT_NE(std::string::npos, status().find("\"from\":\"a\",\"to\":\"b\",\"offset_ms\":30"))
+    // One alignment per link, never replaced: identity, not timing, decided every copy.
+    EXPECT_NE(std::string::npos, status().find("\"name\":\"b\",\"passed\"")) << status();
+    EXPECT_NE(std::string::npos, status().find("\"aligned\":1,\"aligned_by_time\":0,\"realigned\":0"))
         << status();
 }
 
 struct Scenario {
     const char* name;
     std::vector<LinkModel> links;
+    bool periodic = false;
 };
 
 class DedupScenarioTest : public DedupTest, public ::testing::WithParamInterface<Scenario> {};
@@ -526,16 +596,12 @@ TEST_P(DedupScenarioTest, DeliversEachReceivedFrameOnce) {
     std::vector<const mavbond_link*> links = {a_, b_};
     for (size_t i = 2; i < sc.links.size(); i++)
         links.push_back(&host_.add_link("l" + std::to_string(i), "vehicle"));
-    ASSERT_TRUE(create("window: 1s\ndrop_stale: false"));
-    const int count = 30000;
-    auto frames = source_stream(count);
-    auto arrivals = simulate(count, now(), kMs, sc.links, 99);
-    Outcome o = run(*this, frames, arrivals, links,
-                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
+    Outcome o = simulate_and_run(*this, 30000, sc.links, links, 99, sc.periodic);
     std::printf("%s: %d lost on all links, %d delivered of %d, %d legitimate dropped, "
-                "%d copies passed\n",
+                "%d copies passed\n%s\n",
                 sc.name, o.lost_on_all, o.delivered, o.expected, o.legit_dropped,
-                o.duplicates_passed);
+                o.duplicates_passed, status().c_str());
     EXPECT_EQ(0, o.legit_dropped);
     EXPECT_EQ(0, o.duplicates_passed);
 }
@@ -545,18 +611,33 @@ INSTANTIATE_TEST_SUITE_P(
     ::testing::Values(
         Scenario{"second link ahead", {{305 * kMs, 2 * kMs, 0.05}, {5 * kMs, 2 * kMs, 0.05}}},
         Scenario{"lte jitter", {{5 * kMs, 2 * kMs, 0.05}, {300 * kMs, 20 * kMs, 0.05}}},
+        Scenario{"lte reordering", {{30 * kMs, 10 * kMs, 0.05}, {60 * kMs, 90 * kMs, 0.05, true}}},
         Scenario{"three links",
                  {{5 * kMs, 2 * kMs, 0.05}, {300 * kMs, 5 * kMs, 0.05}, {700 * kMs, 5 * kMs, 0.1}}},
-        Scenario{"heavy loss", {{5 * kMs, 2 * kMs, 0.3}, {305 * kMs, 2 * kMs, 0.3}}}),
+        Scenario{"heavy loss", {{5 * kMs, 2 * kMs, 0.3}, {305 * kMs, 2 * kMs, 0.3}}},
+        // Every frame recurs every 256: nothing but positions tells instances apart.
+        Scenario{"periodic skewed", {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}}, true},
+        Scenario{"periodic, first frame lost on the fast link",
+                 {{5 * kMs, 2 * kMs, 0.05, false, {0, 1}}, {305 * kMs, 2 * kMs, 0.05}}, true},
+        // Outages far longer than 128 frames: the sequence byte's step is ambiguous.
+        Scenario{"fast link out for 300 frames",
+                 {{5 * kMs, 2 * kMs, 0.01, false, {5000, 5300}}, {205 * kMs, 2 * kMs, 0.01}}},
+        Scenario{"slow link out for 700 frames",
+                 {{5 * kMs, 2 * kMs, 0.01}, {205 * kMs, 2 * kMs, 0.01, false, {5000, 5700}}}},
+        Scenario{"periodic, fast link out for 300 frames",
+                 {{5 * kMs, 2 * kMs, 0.01, false, {5000, 5300}}, {205 * kMs, 2 * kMs, 0.01}}, true},
+        Scenario{"both links out together",
+                 {{5 * kMs, 2 * kMs, 0.01, false, {5000, 5400}}, {25 * kMs, 2 * kMs, 0.01, false, {5000, 5400}}}}),
     [](const ::testing::TestParamInfo<Scenario>& p) {
-        std::string n = p.param.name;
-        std::replace(n.begin(), n.end(), ' ', '_');
+        std::string n;
+        for (char c : std::string(p.param.name))
+            n += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
         return n;
     });
 
-TEST_F(DedupTest, LatencyStepIsFollowedWithoutDroppingGoodFrames) {
-    // b's latency jumps from 300 ms to 700 ms half way (an LTE cell change). Until the offset
-    // is learned again copies may pass; a good frame must never be dropped.
+TEST_F(DedupTest, LatencyStepChangesNothing) {
+    // b's latency jumps from 300 ms to 700 ms half way (an LTE cell change): positions do not
+    // care how late a copy comes, so nothing is lost and nothing passes twice.
     ASSERT_TRUE(create("window: 1s\ndrop_stale: false"));
     const int count = 30000, half = count / 2;
     auto frames = source_stream(count);
@@ -569,13 +650,46 @@ TEST_F(DedupTest, LatencyStepIsFollowedWithoutDroppingGoodFrames) {
     arrivals.insert(arrivals.end(), second.begin(), second.end());
     std::stable_sort(arrivals.begin(), arrivals.end(),
                      [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
-    Outcome o = run(*this, frames, arrivals, {a_, b_},
+    Outcome o = run(frames, arrivals, {a_, b_},
                     [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
     std::printf("latency step: %d delivered of %d, %d legitimate dropped, %d copies passed\n",
                 o.delivered, o.expected, o.legit_dropped, o.duplicates_passed);
     EXPECT_EQ(0, o.legit_dropped);
-    EXPECT_LT(o.duplicates_passed, 200);  // about a tenth of a second of copies at most
-    EXPECT_NE(std::string::npos, status().find("\"offset_ms\":69")) << status();
+    EXPECT_EQ(0, o.duplicates_passed);
+}
+
+TEST_F(DedupTest, RestartedCounterIsFollowed) {
+    // The source reboots half way: its sequence starts again at 0 (on both links, the other
+    // gateway fanning out one stream). b is 40 ms behind; both lose 2%.
+    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
+    const int count = 4000, half = 2000;
+    std::vector<Bytes> frames;
+    for (int i = 0; i < count; i++) {
+        int n = i < half ? i + 77 : i - half;  // numbered from 77, then from 0 again
+        frames.push_back(v2(static_cast<uint8_t>(n), kAttitude, attitude_payload(static_cast<uint32_t>(i))));
+    }
+    auto arrivals = simulate(count, now(), 10 * kMs, {{5 * kMs, 2 * kMs, 0.02}, {45 * kMs, 2 * kMs, 0.02}}, 4);
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    std::printf("restart: %d delivered of %d, %d legitimate dropped, %d copies passed\n%s\n",
+                o.delivered, o.expected, o.legit_dropped, o.duplicates_passed, status().c_str());
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+}
+
+TEST_F(DedupTest, LinkJoiningLateIsAlignedByItsFirstFrame) {
+    // b comes up 5 s after a (unique content): its first copy places it exactly.
+    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
+    const int count = 10000;
+    auto frames = source_stream(count);
+    auto arrivals = simulate(count, now(), kMs, {{5 * kMs, 2 * kMs, 0.02}, {125 * kMs, 2 * kMs, 0.02}}, 8);
+    arrivals.erase(std::remove_if(arrivals.begin(), arrivals.end(),
+                                  [](const Arrival& a) { return a.link == 1 && a.source < 5000; }),
+                   arrivals.end());
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
 }
 
 TEST_F(DedupTest, ArrivalCountingWouldFailTheLossCase) {
@@ -586,7 +700,7 @@ TEST_F(DedupTest, ArrivalCountingWouldFailTheLossCase) {
     auto arrivals = simulate(count, now(), kMs,
                              {{5 * kMs, 2 * kMs, 0.05}, {305 * kMs, 2 * kMs, 0.05}}, 20240611);
     std::map<Bytes, std::pair<int, int>> seen;  // arrivals per link within the stream
-    Outcome o = run(*this, frames, arrivals, {a_, b_},
+    Outcome o = run(frames, arrivals, {a_, b_},
                     [&](const mavbond_link& l, const Bytes& f, uint64_t) {
                         auto& [na, nb] = seen[f];
                         int& mine = l.id == a_->id ? na : nb;
@@ -625,34 +739,25 @@ TEST_F(DedupTest, MemoryCapForgetsOldestAndNeverDropsOriginals) {
     EXPECT_LE(lines, 4);
 }
 
-TEST_F(DedupTest, HotPathAllocatesNothingAndKeepsUp) {
+TEST_F(DedupTest, HotPathAllocatesNothing) {
     // 100k frames/s over two links, 500 ms window: 50k instances live.
-    ASSERT_TRUE(create("window: 500ms\nmax_entries: 65536\ndrop_stale: true"));
+    // Samples here are 1 ms apart in time_boot_ms but 10 us apart on the wire: stale_after
+    // keeps the stale check running without judging this stream's odd clock.
+    ASSERT_TRUE(create("window: 500ms\nmax_entries: 65536\ndrop_stale: true\nstale_after: 60s"));
     const int count = 300000;  // 3 s of traffic
     auto frames = source_stream(count);
     const uint64_t period = 10'000;  // 10 us
     auto arrivals = simulate(count, now(), period, {{kMs, 0, 0.01}, {21 * kMs, 0, 0.01}}, 5);
     std::vector<mavbond_frame> views;
     views.reserve(arrivals.size());
-    // Frame views built before timing: the daemon's parser hands them over ready.
-    for (const Arrival& a : arrivals) {
-        const Bytes& raw = frames[a.source];
-        mavbond_frame f = host_.frame(raw);
-        f.version = 2;
-        f.seq = raw[4];
-        f.sysid = raw[5];
-        f.compid = raw[6];
-        f.msgid = raw[7];
-        f.payload = raw.data() + 10;
-        f.payload_len = raw[1];
-        if (f.msgid == kAttitude) {
-            f.timestamp_offset = 0;
-            f.timestamp_size = 4;
-        }
-        f.rx_time_ns = a.t;
-        views.push_back(f);
-    }
+    // Frame views built first: the daemon's parser and host hand them over ready.
+    for (const Arrival& a : arrivals)
+        views.push_back(host_.frame(frames[a.source], a.link == 0 ? *a_ : *b_, a.t));
     size_t warm = views.size() / 3;  // fills the window: steady state after
+    std::vector<int> copies(count, 0);
+    size_t expected_passed = 0;  // first copies in the measured part
+    for (size_t i = 0; i < arrivals.size(); i++)
+        expected_passed += copies[arrivals[i].source]++ == 0 && i >= warm;
     for (size_t i = 0; i < warm; i++) {
         mavbond_frame_notes notes{};
         plugin_->on_ingress(self_, &views[i], &notes, arrivals[i].link == 0 ? a_ : b_);
@@ -671,11 +776,11 @@ TEST_F(DedupTest, HotPathAllocatesNothingAndKeepsUp) {
     double ns_per_frame =
         static_cast<double>(std::chrono::duration_cast<std::chrono::nanoseconds>(elapsed).count()) /
         static_cast<double>(views.size() - warm);
-    std::printf("hot path: %zu frames, %.0f ns/frame (%.1f M frames/s), %ld allocations, "
-                "%zu passed\n",
-                views.size() - warm, ns_per_frame, 1e3 / ns_per_frame, g_allocs.load(), passed);
+    // The time is printed, not judged: speed is scripts/bench's to prove.
+    std::printf("hot path: %zu frames, %.0f ns/frame, %ld allocations, %zu passed\n",
+                views.size() - warm, ns_per_frame, g_allocs.load(), passed);
     EXPECT_EQ(0, g_allocs.load());
-    EXPECT_LT(ns_per_frame, 10'000.0);  // 100k frames/s leaves 10 us each, even unoptimised
+    EXPECT_EQ(expected_passed, passed);
 }
 
 }  // namespace

@@ -34,7 +34,7 @@ public:
     void clear() { *this = StreamPositions(); }
 
     static constexpr uint32_t kCapacity = 64;
-    static constexpr int kHistory = 64;       // how far back a late frame can fill its gap
+    static constexpr int kHistory = 128;      // how far back a late frame can fill its gap
     static constexpr int kMaxStep = 128;      // forward steps at least this far are not gaps
     static constexpr uint8_t kResyncRun = 3;  // frames in a row that fit nothing: a restart
 
@@ -42,8 +42,9 @@ private:
     struct Source {
         uint16_t key = 0;
         bool used = false;
+        bool started = false;
         uint8_t odd_run = 0;  // frames in a row that were repeats or far behind
-        uint64_t seen = 0;    // bit i: position last - i arrived
+        uint64_t seen[2] = {};  // bit i (of 128): position last - i arrived
         int64_t last = 0;     // the highest position so far
     };
     Source* find(uint8_t sysid, uint8_t compid);

@@ -3,6 +3,9 @@
 #include <cerrno>
 #include <sstream>
 
+#include "mavlink/frame.h"
+#include "mavlink/message_table.h"
+
 namespace mavbond {
 
 FakeHost::FakeHost() { host_.services = this; }
@@ -127,6 +130,34 @@ mavbond_frame FakeHost::frame(const std::vector<uint8_t>& raw) const {
     f.rx_time_ns = now_ns_;
     f.target_system = f.target_component = -1;
     f.timestamp_offset = -1;
+    return f;
+}
+
+mavbond_frame FakeHost::frame(const std::vector<uint8_t>& raw, const mavbond_link& from,
+                              uint64_t t_ns) {
+    mavbond_frame f = frame(raw);
+    bool v2 = raw.at(0) == kMagicV2;
+    size_t header = v2 ? kHeaderLenV2 : kHeaderLenV1;
+    f.version = v2 ? 2 : 1;
+    f.incompat_flags = v2 ? raw.at(2) : 0;
+    f.seq = raw.at(v2 ? 4 : 2);
+    f.sysid = raw.at(v2 ? 5 : 3);
+    f.compid = raw.at(v2 ? 6 : 4);
+    f.msgid = v2 ? (raw.at(7) | raw.at(8) << 8 | raw.at(9) << 16) : raw.at(5);
+    f.payload = raw.data() + header;
+    f.payload_len = raw.at(1);
+    f.crc_checked = 1;
+    if (const MessageInfo* info = find_message(f.msgid)) {
+        f.timestamp_offset = info->timestamp_ofs;
+        f.timestamp_size = info->timestamp_size;
+        f.timestamp_us = info->timestamp_us;
+    }
+    if (t_ns)
+        f.rx_time_ns = t_ns;
+    StreamStep step = positions_[from.id].track(f.sysid, f.compid, f.seq);
+    f.stream_pos = step.pos;
+    f.stream_lost = step.lost;
+    f.stream_flags = step.flags;
     return f;
 }
 

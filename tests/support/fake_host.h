@@ -11,6 +11,7 @@
 
 #include "config/config.h"
 #include "filters/plugin_host.h"
+#include "filters/stream_positions.h"
 
 namespace mavbond {
 
@@ -33,6 +34,11 @@ public:
 
     /// A frame view over `raw` (which must outlive the call it is used in).
     mavbond_frame frame(const std::vector<uint8_t>& raw) const;
+    /// What the daemon hands a filter for `raw` (a v1 or v2 frame) arriving on `from` at
+    /// `t_ns` (0: now): the header read, the message's timestamp and target fields from the
+    /// message table, and the link's stream position tracked as the host tracks it.
+    mavbond_frame frame(const std::vector<uint8_t>& raw, const mavbond_link& from,
+                        uint64_t t_ns = 0);
 
     // HostServices
     uint64_t now_ns() override { return now_ns_; }
@@ -64,6 +70,7 @@ private:
     uint64_t next_timer_ = 1;
     std::map<uint64_t, Timer> timers_;
     std::vector<std::unique_ptr<LinkSlot>> links_;
+    std::map<uint32_t, StreamPositions> positions_;  // by link id
     std::vector<std::string> bonds_;
     const mavbond_plugin_descriptor* plugin_ = nullptr;
     void* self_ = nullptr;
