@@ -105,7 +105,6 @@ struct LinkStats {
     uint32_t bond = kNone;  // index into Stats::bonds_
     uint32_t member = 0;    // position among the bond's members
     LinkTotals total, prev, interval;
-    SourceTable sources;
 };
 
 struct BondStats {
@@ -272,9 +271,9 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
     uint32_t flags = notes ? notes->flags : 0;
     l.total.frames++;
     l.total.bytes += f->raw_len;
-    SeqStep s = l.sources.step(f->sysid, f->compid, f->seq);
-    l.total.received += s.received;
-    l.total.lost += s.lost;
+    // The host tracks each link's positions per source: its loss is the gaps in them.
+    l.total.received += (f->stream_flags & MAVBOND_STREAM_REPEAT) ? 0 : 1;
+    l.total.lost += f->stream_lost;
     if (l.bond == kNone)
         return;
 
@@ -283,7 +282,11 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
     b.total.bytes += f->raw_len;
     if (!(flags & MAVBOND_NOTE_DROPPED)) {
         b.total.delivered++;
-        SeqStep d = b.delivered_sources.step(f->sysid, f->compid, f->seq);
+        // The delivered stream, numbered as dedup numbers it when it does (the same for every
+        // link's copy, whatever each link's own counter), else by the frames' own numbers.
+        auto seq = static_cast<uint8_t>(
+            notes && (flags & MAVBOND_NOTE_POSITION) ? notes->bond_pos : f->seq);
+        SeqStep d = b.delivered_sources.step(f->sysid, f->compid, seq);
         b.total.received += d.received;
         b.total.lost += d.lost;
     } else {

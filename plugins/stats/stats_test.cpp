@@ -183,12 +183,7 @@ protected:
                          uint8_t compid = 1, uint32_t flags = 0, int64_t skew_ns = 0,
                          const std::string& first = "") {
         auto raw = raw_frame(seq, sysid, compid, 0);
-        mavbond_frame f = host_.frame(raw);
-        f.version = 2;
-        f.seq = seq;
-        f.sysid = sysid;
-        f.compid = compid;
-        f.crc_checked = 1;
+        mavbond_frame f = host_.frame(raw, host_.link(link));  // positions tracked by the host
         mavbond_frame_notes notes{};
         notes.struct_size = sizeof notes;
         notes.flags = flags;

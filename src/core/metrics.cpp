@@ -39,8 +39,7 @@ const std::map<std::string, const char*>& renumber_help() {
         {"renumbered", "Frames the bond delivered with a new sequence number."},
         {"gaps", "Sequence numbers skipped on output: frames lost on every link of the bond."},
         {"late_filled", "Frames delivered after a later one, given the number they had kept."},
-        {"offsets_learned", "A link's numbering offset set or changed (from a duplicate copy)."},
-        {"unmatched", "Duplicate copies whose first copy was no longer remembered."},
+        {"unplaced", "Frames delivered before dedup could place them in the stream (given the next number)."},
         {"untracked", "Frames of sources beyond the renumbering table (left as they were)."},
         {"signed_left_alone", "Signed frames passed with their own number (the signature covers it)."},
     };

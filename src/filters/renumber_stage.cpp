@@ -29,19 +29,14 @@ FrameFilter::Verdict RenumberStage::on_ingress(const Frame& frame, Endpoint& fro
         b.signed_left_alone++;
         return verdict;
     }
-    const mavbond_frame_notes& notes = chain_.ingress_notes();
-    const bool hashed = notes.flags & MAVBOND_NOTE_HASHED;
-    const SeqRenumberer::Key key{notes.hash[0], notes.hash[1]};
-    const int64_t t_ns = std::chrono::duration_cast<Duration>(now.time_since_epoch()).count();
-    if (verdict == Verdict::Drop) {
-        // Only a copy dedup dropped teaches an offset; other drops leave no trace.
-        if (hashed && (notes.flags & MAVBOND_NOTE_DUPLICATE))
-            b.renumberer->duplicate(frame.sysid, frame.compid, from.id(), frame.seq, key, t_ns,
-                                    notes.skew_ns);
+    if (verdict == Verdict::Drop)
         return verdict;
-    }
-    uint8_t out = b.renumberer->deliver(frame.sysid, frame.compid, from.id(), frame.seq,
-                                        hashed ? &key : nullptr, t_ns);
+    // dedup's position for the frame: the same for every link's copy of it.
+    const mavbond_frame_notes& notes = chain_.ingress_notes();
+    const int64_t t_ns = std::chrono::duration_cast<Duration>(now.time_since_epoch()).count();
+    uint8_t out = notes.flags & MAVBOND_NOTE_POSITION
+                      ? b.renumberer->deliver(frame.sysid, frame.compid, frame.seq, notes.bond_pos, t_ns)
+                      : b.renumberer->deliver_unplaced(frame.sysid, frame.compid, frame.seq);
     rewrite_seq_in_place(frame, out);
     return verdict;
 }
@@ -63,10 +58,9 @@ std::vector<std::pair<const char*, uint64_t>> RenumberStage::counters(size_t bon
     if (bond >= bonds_.size() || !bonds_[bond].renumberer)
         return {};
     const SeqRenumberer::Counters& c = bonds_[bond].renumberer->counters();
-    return {{"renumbered", c.renumbered},           {"gaps", c.gaps},
-            {"late_filled", c.late_filled},         {"offsets_learned", c.offsets_learned},
-            {"unmatched", c.unmatched},             {"untracked", c.untracked},
-            {"signed_left_alone", bonds_[bond].signed_left_alone}};
+    return {{"renumbered", c.renumbered},   {"gaps", c.gaps},
+            {"late_filled", c.late_filled}, {"unplaced", c.unplaced},
+            {"untracked", c.untracked},     {"signed_left_alone", bonds_[bond].signed_left_alone}};
 }
 
 void RenumberStage::log_summary() const {

@@ -1,6 +1,6 @@
 // The filter chain plus sequence renumbering for the bonds that ask for it (`renumber: true`):
-// it sees what dedup noted on each frame (its key hash; whether it was a duplicate copy) and
-// rewrites the seq of the frames the bond delivers before they are routed. Bonds without
+// it reads the position dedup noted on each frame the bond delivers (the same for every link's
+// copy) and rewrites its seq before it is routed. Bonds without
 // renumbering, and signed frames (the signature covers seq, they are counted), pass untouched.
 #pragma once
 
