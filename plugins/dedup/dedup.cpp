@@ -264,10 +264,11 @@ private:
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
     /// Whether the link may have missed more than kAmbiguousStep frames since its last one.
     bool after_outage(const Lane& lane, const Stream& s, uint64_t t) const;
-    /// A link not aligned (or no longer, after an outage): finds the frame's place.
-    Verdict align(const Arrival& a, Lane& lane, uint32_t e, bool outage);
+    /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place.
+    Verdict align(const Arrival& a, Lane& lane, uint32_t e, const char* why);
     Verdict copy_of(const Arrival& a, uint32_t rec);
-    void set_alignment(const Arrival& a, Lane& lane, int64_t offset);
+    /// Aligns a link's lane; a changed alignment is logged with `why`.
+    void set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why);
     void learn_lag(Member& m, int64_t skew_ns);
     void remember(const Arrival& a, Key key, int64_t pos);
     void note_position(const Arrival& a, Lane& lane, int64_t pos);
@@ -292,6 +293,8 @@ private:
     void expire(uint64_t now);
 
     Member& member_of(uint32_t bond, uint32_t member) { return members_[bond * kMaxMembers + member]; }
+    /// A link's name for a log line ("?" when it is gone).
+    const char* link_name(uint32_t id) const;
 
     const mavbond_host_api* api_;
     mavbond_host* host_;
@@ -670,10 +673,18 @@ bool Dedup::after_outage(const Lane& lane, const Stream& s, uint64_t t) const {
            t - lane.last_t >= static_cast<uint64_t>(kAmbiguousStep) * s.ns_per_frame;
 }
 
-void Dedup::set_alignment(const Arrival& a, Lane& lane, int64_t offset) {
+void Dedup::set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why) {
     Member& m = member_of(a.bond, a.member);
-    if (lane.aligned && lane.offset != offset)
+    if (lane.aligned && lane.offset != offset) {
         m.realigned++;
+        const Stream& s = streams_[a.stream];
+        char msg[240];
+        std::snprintf(msg, sizeof msg,
+                      "link %s: source %u/%u aligned anew, %+" PRId64 " positions (%s)",
+                      link_name(a.link_id), static_cast<unsigned>(s.key >> 8 & 0xff),
+                      static_cast<unsigned>(s.key & 0xff), offset - lane.offset, why);
+        api_->log(host_, MAVBOND_LOG_INFO, msg);
+    }
     if (!lane.aligned)
         m.aligned++;
     lane.aligned = 1;
@@ -704,12 +715,13 @@ Dedup::Verdict Dedup::copy_of(const Arrival& a, uint32_t rec) {
     return v;
 }
 
-Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outage) {
+Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char* why) {
+    const bool outage = why != nullptr;
     Stream& s = streams_[a.stream];
     Verdict v;
     if (s.head == kUnknownPos) {
         // The stream's first frame: this link's numbering becomes the bond's.
-        set_alignment(a, lane, 0);
+        set_alignment(a, lane, 0, "the stream's first frame");
         v.pos = a.link_pos;
         return v;
     }
@@ -717,8 +729,8 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outag
     // and with key: frame, where the offset stays a whole number of turns of 256, a position
     // no link delivered (a frame the others lost). Time chooses when there is a choice: the
     // kernel's receive time against the first copy's, as far apart as the two links usually
-    // are; before that is known, the earliest place in a young stream (links start with the
-    // stream), else the oldest copy.
+    // are; before that is known, in a young stream the place nearest its first frame (the
+    // links came up with the stream), else the oldest copy.
     const Member& m = member_of(a.bond, a.member);
     bool young = s.head - s.first_pos < 2 * 256;
     bool by_time = m.lag_known || (outage && s.ns_per_frame != 0);
@@ -736,7 +748,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outag
         if (by_time)
             err = abs64(static_cast<int64_t>(a.t - t_first) - (lag(a.member) - lag(first_member)));
         else if (young)
-            err = pos;  // the earliest
+            err = abs64(pos - s.first_pos);  // where the stream began
         else
             err = copy ? static_cast<int64_t>(t_first) : INT64_MAX - 1;  // the oldest copy
         if (err < best_err) {
@@ -752,7 +764,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outag
             if (r.stream != a.stream || r.pos == kUnknownPos || (r.seen >> a.member & 1))
                 continue;
             if (a.unique) {  // a key that never recurs: this is the frame, no choice to make
-                set_alignment(a, lane, r.pos - a.link_pos);
+                set_alignment(a, lane, r.pos - a.link_pos, why ? why : "its first frames");
                 return copy_of(a, en.rec[i]);
             }
             consider(r.pos, en.rec[i], r.t0, r.first_member, true);
@@ -791,7 +803,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outag
             // New, with nothing to place it by (its key's numbering restarted): it goes on from
             // the stream's head, until a unique key says otherwise.
             v.pos = s.head + 1;
-            set_alignment(a, lane, v.pos - a.link_pos);
+            set_alignment(a, lane, v.pos - a.link_pos, why);
             lane.tentative = 1;
             return v;
         }
@@ -800,7 +812,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, bool outag
         lane.aligned = 0;
         return v;
     }
-    set_alignment(a, lane, best_pos - a.link_pos);
+    set_alignment(a, lane, best_pos - a.link_pos, why ? why : "its first frames");
     if (options > 1) {
         lane.tentative = 1;
         member_of(a.bond, a.member).by_time += by_time ? 1 : 0;
@@ -815,9 +827,12 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     Lane& lane = lane_of(a);
     Stream& s = streams_[a.stream];
     uint32_t e = find(a.bond, key);
-    bool outage = lane.aligned && after_outage(lane, s, a.t);
-    if (!lane.aligned || outage || (flags & MAVBOND_STREAM_RESYNC))
-        return align(a, lane, e, lane.aligned);
+    if (!lane.aligned)
+        return align(a, lane, e, nullptr);
+    if (flags & MAVBOND_STREAM_RESYNC)
+        return align(a, lane, e, "its numbering restarted");
+    if (after_outage(lane, s, a.t))
+        return align(a, lane, e, "an outage of 128 frames or more");
 
     Verdict v;
     v.pos = a.link_pos + lane.offset;
@@ -831,7 +846,7 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
         // without a run of frames to show it). Placed anew, by identity first.
-        return align(a, lane, e, true);
+        return align(a, lane, e, "another frame holds its position");
     }
     if (e == kNone)
         return v;
@@ -857,7 +872,7 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         if (first.generation == member_of(a.bond, r.first_member).generation && !first.aligned) {
             Arrival at_first = a;
             at_first.member = r.first_member;
-            set_alignment(at_first, first, v.pos - r.link_pos);
+            set_alignment(at_first, first, v.pos - r.link_pos, "another link's copy placed it");
         }
         return copy_of(a, rec);
     }
@@ -870,7 +885,7 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         int64_t offset = ring_[rec].pos - a.link_pos;
         if (a.is_signed || lane.tentative ||
             (lane.contradictions > 0 && lane.proposed == offset)) {
-            set_alignment(a, lane, offset);
+            set_alignment(a, lane, offset, "a unique frame the bond has at another position");
             return copy_of(a, rec);
         }
         lane.contradictions = 1;
@@ -1043,6 +1058,16 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
 
 // --- status --------------------------------------------------------------------------------
 
+const char* Dedup::link_name(uint32_t id) const {
+    const mavbond_link* links[256];
+    size_t n = std::min<size_t>(api_->links(host_, links, 256), 256);
+    for (size_t i = 0; i < n; i++) {
+        if (links[i]->id == id && links[i]->name)
+            return links[i]->name;
+    }
+    return "?";
+}
+
 void append_json_string(std::string& out, const char* s) {
     out += '"';
     for (; s && *s; s++) {
@@ -1062,15 +1087,6 @@ void append_json_string(std::string& out, const char* s) {
 }
 
 std::string Dedup::status() const {
-    const mavbond_link* links[256];
-    size_t n = std::min<size_t>(api_->links(host_, links, 256), 256);
-    auto name_of = [&](uint32_t id) {
-        for (size_t i = 0; i < n; i++) {
-            if (links[i]->id == id && links[i]->name)
-                return links[i]->name;
-        }
-        return "?";
-    };
     char num[160];
     std::string out = "{";
     std::snprintf(num, sizeof num, "\"window_ms\":%.1f,", static_cast<double>(window_ns_) / kMs);
@@ -1097,7 +1113,7 @@ std::string Dedup::status() const {
             continue;
         out += first ? "{\"name\":" : ",{\"name\":";
         first = false;
-        append_json_string(out, name_of(mem.link_id));
+        append_json_string(out, link_name(mem.link_id));
         std::snprintf(num, sizeof num,
                       ",\"passed\":%" PRIu64 ",\"duplicates\":%" PRIu64 ",\"stale\":%" PRIu64
                       ",\"aligned\":%" PRIu64 ",\"aligned_by_time\":%" PRIu64

@@ -33,9 +33,8 @@ void EventLoop::Watch::set_events(uint32_t events) {
 
 uint32_t EventLoop::Watch::events() const { return record_ ? record_->events : 0; }
 
-bool EventLoop::Watch::unread_this_round() const {
-    return record_ && record_->ready_round == loop_->round_ &&
-           record_->dispatched_round != loop_->round_;
+bool EventLoop::Watch::ready_this_round() const {
+    return record_ && record_->ready_round == loop_->round_;
 }
 
 void EventLoop::Watch::reset() {
@@ -215,6 +214,7 @@ bool EventLoop::run_once(Duration max_wait) {
     if (std::exchange(prompt_round_, false))
         timeout = 0;
     std::array<epoll_event, 64> events;
+    polled_after_ = now_;
     int n = epoll_wait(epoll_fd_.get(), events.data(), static_cast<int>(events.size()), timeout);
     if (n < 0) {
         if (errno != EINTR) {
@@ -229,7 +229,6 @@ bool EventLoop::run_once(Duration max_wait) {
         static_cast<WatchRecord*>(events[i].data.ptr)->ready_round = round_;
     for (int i = 0; i < n; i++) {
         auto* record = static_cast<WatchRecord*>(events[i].data.ptr);
-        record->dispatched_round = round_;
         if (!record->dead)
             record->handler(events[i].events);
     }

@@ -40,9 +40,8 @@ public:
         void set_events(uint32_t events);
         uint32_t events() const;
         bool active() const { return record_ != nullptr; }
-        /// Whether the fd had events in this round that its handler has not been given yet:
-        /// the data it holds arrived before what the handlers of this round read so far.
-        bool unread_this_round() const;
+        /// Whether epoll reported the fd in this round (it may hold data the round began with).
+        bool ready_this_round() const;
         void reset();
 
     private:
@@ -100,6 +99,13 @@ public:
 
     /// The time cached at the start of this round (one clock read per batch).
     TimePoint now() const { return now_; }
+    /// A time before epoll looked at the fds for this round (the previous round's start): an
+    /// fd it did not report had nothing then. (epoll looked later, maybe much later when the
+    /// process was stopped in between: a data point that bounds it better is the arrival of
+    /// what a reported fd held, see Router::Input.)
+    TimePoint polled_after() const { return polled_after_; }
+    /// The number of this round.
+    uint64_t round() const { return round_; }
 
 private:
     struct WatchRecord {
@@ -107,8 +113,7 @@ private:
         uint32_t events;
         IoHandler handler;
         bool dead = false;
-        uint64_t ready_round = 0;       // the last round epoll reported it
-        uint64_t dispatched_round = 0;  // the last round its handler ran
+        uint64_t ready_round = 0;  // the last round epoll reported it
     };
     struct TimerEntry {
         TimePoint due;
@@ -138,6 +143,7 @@ private:
     bool prompt_round_ = false;
     std::vector<std::function<void()>> deferred_;
     TimePoint now_ = Clock::now();
+    TimePoint polled_after_ = now_;
     bool exit_requested_ = false;
     int exit_code_ = 0;
 };

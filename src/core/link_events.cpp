@@ -56,14 +56,13 @@ std::string LinkEvents::link_text(std::string_view link, bool up, std::string_vi
     return std::string(text).substr(0, kTextMax);
 }
 
-void LinkEvents::observe_link(uint32_t id, uint64_t rx_frames, TimePoint now) {
+void LinkEvents::observe_link(uint32_t id, TimePoint last_rx, TimePoint now) {
     Link& l = links_[id];
     const bool was_due = l.state != l.reported;
-    bool heard = rx_frames != l.rx;
-    l.rx = rx_frames;
+    bool heard = last_rx > l.last_heard;
     const Bond& b = bonds_[l.bond];
     if (heard) {
-        l.last_heard = now;
+        l.last_heard = last_rx;
         if (l.state == State::Up)
             return;
         State was = l.state;
@@ -194,14 +193,14 @@ LinkEventMonitor::LinkEventMonitor(const LinkEventsConfig& config,
             links_.emplace_back(e.get(), events_.add_link(bond, e->name()));
     }
     timer_ = loop.schedule(kTick, [this, &loop] {
-        tick(loop.now());
+        tick(router_.arrival_clock(loop.now()));
         return kTick;
     });
 }
 
 void LinkEventMonitor::tick(TimePoint now) {
     for (const auto& [endpoint, id] : links_)
-        events_.observe_link(id, endpoint->total_stats().rx.frames, now);
+        events_.observe_link(id, endpoint->total_stats().last_rx, now);
     const auto& bonds = router_.bonds();
     for (uint32_t i = 0; i < bonds.size(); i++) {
         const Endpoint* active = bonds[i].active_link < router_.endpoints().size()

@@ -2,8 +2,10 @@
 // link switching are logged once each and told to the GCS as STATUSTEXT from mavbond's own
 // identity, rate-limited so a flapping link never makes a storm.
 //
-// Everything is read from a 100 ms timer (each member's receive counter, each bond's active
-// link): nothing is added to the per-frame path.
+// Everything is read from a 100 ms timer (when each member's last frame arrived, each bond's
+// active link): nothing is added to the per-frame path. Silence is judged on the arrival clock
+// (Router::arrival_clock), so a daemon that stalled finds the frames that came meanwhile, not
+// a silent link.
 //
 // The rule for STATUSTEXT, per subject (a link, or a bond's active link):
 // - a link heard for the first time, or a bond's first active link, is logged, not announced;
@@ -53,8 +55,9 @@ public:
     uint32_t add_bond(std::string name);
     uint32_t add_link(uint32_t bond, std::string name);
 
-    /// A link's receive counter, read at `now` (every tick).
-    void observe_link(uint32_t link, uint64_t rx_frames, TimePoint now);
+    /// When a link's last frame arrived (epoch: never), as of `now` on the arrival clock
+    /// (every tick): a stalled daemon finds its links' frames arrived, not silence.
+    void observe_link(uint32_t link, TimePoint last_rx, TimePoint now);
     /// A bond's active link ("" when none is chosen) and its switch count.
     void observe_bond(uint32_t bond, std::string_view active, uint64_t switches, TimePoint now);
     /// The events seen since the last call and the notices the rate limit lets out now.
@@ -73,7 +76,6 @@ private:
     struct Link {
         std::string name;
         uint32_t bond;
-        uint64_t rx = 0;
         TimePoint last_heard;
         State state = State::Never;
         State reported = State::Never;

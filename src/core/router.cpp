@@ -213,19 +213,28 @@ void Router::deliver_to_recorders(const Endpoint& from, const Frame& frame, Time
     }
 }
 
-bool Router::ArrivalQueue::must_wait(TimePoint t) const {
+bool Router::ArrivalQueue::must_wait(TimePoint t, TimePoint polled) const {
     if (!frames.empty())
         return true;  // after the ones already waiting
     for (const Input* in : inputs) {
-        if (in->may_hold_before(t))
+        if (in->read_to(polled) < t)
             return true;
     }
     return false;
 }
 
+TimePoint Router::polled() const {
+    return polled_round_ == loop_.round() ? polled_ : loop_.polled_after();
+}
+
+void Router::polled_no_earlier_than(TimePoint t) {
+    polled_ = std::max(polled(), t);
+    polled_round_ = loop_.round();
+}
+
 void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint arrival) {
     uint32_t bond = bond_of_[from.id()];
-    if (bond != kNoBond && queues_[bond].must_wait(arrival))
+    if (bond != kNoBond && queues_[bond].must_wait(arrival, polled()))
         wait_aside(queues_[bond], from, frame, arrival);
     else
         route(from, frame, arrival);
@@ -240,46 +249,52 @@ void Router::wait_aside(ArrivalQueue& queue, Endpoint& from, const Frame& frame,
 }
 
 void Router::merge_round() {
-    bool held = false;
+    bool any = false;
     for (ArrivalQueue& q : queues_) {
         if (q.frames.empty())
             continue;
+        any = true;
         // Every frame up to the time each input is known to be read to.
-        TimePoint until = TimePoint::max();
-        for (const Input* in : q.inputs) {
-            if (in->may_hold_more())
-                until = std::min(until, in->last_);
-        }
+        q.held_until = TimePoint::max();
+        for (const Input* in : q.inputs)
+            q.held_until = std::min(q.held_until, in->read_to(polled()));
         std::sort(q.frames.begin(), q.frames.end(), [](const WaitingFrame& a, const WaitingFrame& b) {
             return a.arrival != b.arrival ? a.arrival < b.arrival : a.order < b.order;
         });
-        size_t done = 0;
-        for (; done < q.frames.size() && q.frames[done].arrival <= until; done++) {
-            WaitingFrame& w = q.frames[done];
+        for (q.handled = 0; q.handled < q.frames.size(); q.handled++) {
+            WaitingFrame& w = q.frames[q.handled];
+            if (w.arrival > q.held_until)
+                break;
             const uint8_t* base = q.arena.data() + w.offset;
             auto payload_at = w.frame.payload.data() - w.frame.bytes.data();
             w.frame.payload = {base + payload_at, w.frame.payload.size()};
             w.frame.bytes = {base, w.frame.bytes.size()};
             route(*w.from, w.frame, w.arrival);
         }
-        if (done == q.frames.size()) {
-            q.frames.clear();
+    }
+    if (!any)
+        return;
+    // The frames just routed are lent from the arenas: sent before the arenas change.
+    end_batch();
+    bool held = false;
+    for (ArrivalQueue& q : queues_) {
+        if (q.frames.empty())
+            continue;
+        q.frames.erase(q.frames.begin(), q.frames.begin() + static_cast<ptrdiff_t>(q.handled));
+        q.handled = 0;
+        if (q.frames.empty()) {
             q.arena.clear();
-            q.held_until = TimePoint::max();
             continue;
         }
-        // The rest waits; its bytes move to the front of the arena.
-        q.frames.erase(q.frames.begin(), q.frames.begin() + static_cast<ptrdiff_t>(done));
+        // The rest waits for the next round; its bytes move to the front of the arena.
+        held = true;
         size_t keep_from = q.frames.front().offset;  // not sorted by offset: find the lowest
         for (const WaitingFrame& w : q.frames)
             keep_from = std::min<size_t>(keep_from, w.offset);
         q.arena.erase(q.arena.begin(), q.arena.begin() + static_cast<ptrdiff_t>(keep_from));
         for (WaitingFrame& w : q.frames)
             w.offset -= static_cast<uint32_t>(keep_from);
-        q.held_until = until;
-        held = true;
     }
-    end_batch();
     if (held)
         loop_.request_prompt_round();
 }

@@ -13,11 +13,12 @@
 // however late the loop gets to them. A stalled daemon finds a backlog on every link at once;
 // handed on link by link, the frames one link lost would come after newer ones another link
 // carried (and be dropped as stale, or numbered out of order). So a frame from a bond's link
-// is handled at once only when no other socket of the bond can still hold an earlier one (its
-// fd is ready but not yet read in this round, or its last read filled the whole batch and
-// ended before this frame arrived); otherwise it is copied aside, and after the round's reads
-// the copies are handled in arrival order, up to the time every socket of the bond is known
-// to be read to. The rest waits for the next round, which then comes at once.
+// is handled at once only when every socket of the bond is known to be read up to its arrival
+// (a socket epoll did not report had nothing when the round began; one it reported is read to
+// where its read got, the last datagram of a full batch or the time of the read); otherwise it
+// is copied aside, and after the round's reads the copies are handled in arrival order, up to
+// the time every socket of the bond is read to. The rest waits for the next round, which then
+// comes at once.
 #pragma once
 
 #include <cstdint>
@@ -68,20 +69,25 @@ public:
         Input& operator=(const Input&) = delete;
         /// After each read: `full` when it filled its whole batch (more waits in the kernel)
         /// and `until` when the last datagram it read arrived; else `until` is when the read
-        /// was made (everything that arrived before it was read).
-        void read(bool full, TimePoint until) {
+        /// was made (everything that arrived before it was read). `first`: when the first
+        /// datagram it read arrived (none read: a time point of zero).
+        void read(bool full, TimePoint until, TimePoint first) {
             backlog_ = full;
             last_ = until;
+            if (first != TimePoint{} && watch_.ready_this_round())
+                router_.polled_no_earlier_than(first);
         }
         /// A read that failed (an ICMP error comes first): data may still wait behind it.
         void read_failed() { backlog_ = true; }
 
     private:
         friend class Router;
-        /// Whether the kernel may hold more for it than it read (which arrived after last_).
-        bool may_hold_more() const { return backlog_ || watch_.unread_this_round(); }
-        /// Whether it may still hold a frame that arrived before `t`.
-        bool may_hold_before(TimePoint t) const { return may_hold_more() && last_ < t; }
+        /// The time up to which every datagram that arrived for it has been read, as far as
+        /// this round shows: a socket epoll did not report had nothing new when epoll looked
+        /// (`polled`, a time no later than that); one it did is read to where its read got.
+        TimePoint read_to(TimePoint polled) const {
+            return backlog_ || watch_.ready_this_round() ? last_ : std::max(last_, polled);
+        }
         Router& router_;
         std::string bond_name_;
         uint32_t bond_ = kNoBond;
@@ -158,14 +164,21 @@ private:
         std::vector<Input*> inputs;
         std::vector<WaitingFrame> frames;
         std::vector<uint8_t> arena;
+        size_t handled = 0;  // frames routed by the merge under way
         TimePoint held_until = TimePoint::max();  // frames after it wait for the next round
-        bool must_wait(TimePoint t) const;
+        /// Whether a frame that arrived at `t` must wait for others that may have come before.
+        bool must_wait(TimePoint t, TimePoint polled) const;
     };
     /// Learn, filter, route, queue.
     void route(Endpoint& from, const Frame& frame, TimePoint arrival);
     void wait_aside(ArrivalQueue& queue, Endpoint& from, const Frame& frame, TimePoint arrival);
     /// Resolves every input's bond by name (after replace_bonds()).
     void place_inputs();
+    /// A time no later than when epoll looked at the fds in this round: its own bound, raised
+    /// by the arrival of the first datagram read from each fd it reported (each was there when
+    /// epoll looked).
+    TimePoint polled() const;
+    void polled_no_earlier_than(TimePoint t);
     void learn(Endpoint& from, uint8_t sysid, uint8_t compid, TimePoint now);
     /// Whether the route target `to` belongs to (itself, or its whole bond) knows the target.
     bool target_knows(const Endpoint& to, uint8_t sysid, uint8_t compid) const;
@@ -187,6 +200,8 @@ private:
     std::vector<ArrivalQueue> queues_;            // index = bond index
     std::vector<Input*> inputs_;
     uint64_t wait_order_ = 0;
+    TimePoint polled_ = {};      // polled()'s bound for round polled_round_
+    uint64_t polled_round_ = 0;
     uint64_t frames_merged_ = 0;
     std::vector<Endpoint*> endpoints_;            // index = endpoint id; nullptr = free slot
     std::vector<uint32_t> bond_of_;               // index = endpoint id

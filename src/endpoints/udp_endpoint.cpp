@@ -214,7 +214,9 @@ void UdpServer::on_events(uint32_t events) {
         return;
     }
     stats_.rx_overflows += batch_.take_overflows();
-    input_->read(batch_.full(), batch_.read_until());
+    // A socket epoll reported readable held its first datagram when epoll looked.
+    input_->read(batch_.full(), batch_.read_until(),
+                 events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
         TimePoint arrival = batch_.arrival(idx);
@@ -286,7 +288,9 @@ void UdpClient::on_events(uint32_t events) {
         return;
     }
     stats_.rx_overflows += batch_.take_overflows();
-    input_->read(batch_.full(), batch_.read_until());
+    // A socket epoll reported readable held its first datagram when epoll looked.
+    input_->read(batch_.full(), batch_.read_until(),
+                 events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
         route_datagram(batch_.data(idx), *this, stats_, policy_, router_, batch_.arrival(idx));

@@ -36,6 +36,8 @@ public:
     /// to which the socket is read (the last arrival when full, else when it was read).
     bool full() const { return count_ == kCount; }
     TimePoint read_until() const { return full() ? arrival_[kCount - 1] : read_at_; }
+    /// When the first datagram of the last receive() arrived (zero when there was none).
+    TimePoint first_arrival() const { return count_ ? arrival_[0] : TimePoint{}; }
     /// Datagrams the kernel dropped for a full receive buffer since the last call.
     uint64_t take_overflows() { return std::exchange(overflows_, 0); }
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -329,3 +330,265 @@ class Ticker:
     def stop(self):
         self._stop.set()
         self._t.join(2)
+
+
+# --- a group of links in one emulator process -----------------------------------------------
+
+class EmuGroup:
+    """Several links in ONE linkemu process (`linkemu.py --group`): one loop and one heap of
+    due sends, so when two links' datagrams are due, every forward address gets the earlier
+    one first. Each link: a dict with name, listen_port, forward_ports (a port or a list: a
+    tee; replies come from the first only), seed and linkemu options as for Emu (loss="1%",
+    outage=["5s+2s"], up_delay="20ms", reorder=True). Outages count from the group's start.
+    Drops are logged per link; with log_sends, every send too (index, arrived, due, sent, n)."""
+
+    def __init__(self, workdir: Path, name: str, links: Sequence[dict], duration=None,
+                 log_sends: bool = False):
+        self.name = name
+        self.spec_path = workdir / f"linkemu-{name}-group.json"
+        self.out_path = workdir / f"linkemu-{name}.out"
+        self.err_path = workdir / f"linkemu-{name}.err"
+        self.drops_paths: Dict[str, Path] = {}
+        self.sends_paths: Dict[str, Path] = {}
+        spec = []
+        for link in links:
+            link = dict(link)
+            lname = link.pop("name")
+            fwd = link.pop("forward_ports")
+            fwd = fwd if isinstance(fwd, (list, tuple)) else [fwd]
+            item = {"name": lname, "listen": f"{HOST}:{link.pop('listen_port')}",
+                    "forward": [f"{HOST}:{p}" for p in fwd], "seed": link.pop("seed", 1)}
+            self.drops_paths[lname] = workdir / f"linkemu-{name}-{lname}-drops.jsonl"
+            item["log_drops"] = str(self.drops_paths[lname])
+            if log_sends:
+                self.sends_paths[lname] = workdir / f"linkemu-{name}-{lname}-sends.jsonl"
+                item["log_sends"] = str(self.sends_paths[lname])
+            item.update(link)
+            spec.append(item)
+        self.link_names = [s["name"] for s in spec]
+        self.spec_path.write_text(json.dumps(spec, indent=1))
+        self.args = [sys.executable, str(LINKEMU), "--group", str(self.spec_path)]
+        if duration is not None:
+            self.args += ["--duration", str(duration)]
+        self.proc: Optional[subprocess.Popen] = None
+        self._counters: Optional[Dict[str, Dict[str, dict]]] = None
+        self.t_start: Optional[float] = None
+
+    def start(self, timeout: float = 10.0) -> "EmuGroup":
+        """Starts the process; returns once every link listens (its clock starts then)."""
+        self._out = open(self.out_path, "wb")
+        self._err = open(self.err_path, "wb")
+        self.proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=self._out,
+                                     stderr=self._err)
+        deadline = time.monotonic() + timeout
+        while b"links listening" not in self.err_path.read_bytes():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"linkemu group {self.name} did not start: "
+                                     f"{self.err_path.read_text(errors='replace')}")
+            time.sleep(0.01)
+        self.t_start = time.monotonic()
+        return self
+
+    def stop(self) -> Dict[str, Dict[str, dict]]:
+        """SIGTERM; {link: {"up": counters, "down": counters}} from its last lines."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc is not None:
+            self._out.close()
+            self._err.close()
+        if self._counters is None:
+            rows = [json.loads(l) for l in self.out_path.read_text().splitlines()
+                    if l.startswith("{")]
+            last = rows[-2 * len(self.link_names):]
+            self._counters = {}
+            for r in last:
+                self._counters.setdefault(r["link"], {})[r["direction"]] = r
+        return self._counters
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def counters_now(self, timeout: float = 10.0) -> Dict[str, Dict[str, dict]]:
+        """{link: {"up", "down"}} as of now, while it runs (SIGUSR1: it prints them and
+        flushes its logs). Waits for every line of this dump."""
+        def rows():
+            text = self.out_path.read_text()
+            return [json.loads(l) for l in text[:text.rfind("\n") + 1].splitlines()
+                    if l.startswith("{")]
+        before = len(rows())
+        want = before + 2 * len(self.link_names)
+        self.proc.send_signal(signal.SIGUSR1)
+        deadline = time.monotonic() + timeout
+        while len(got := rows()) < want:
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"linkemu group {self.name} printed no counters")
+            time.sleep(0.005)
+        out: Dict[str, Dict[str, dict]] = {}
+        for r in got[before:want]:
+            out.setdefault(r["link"], {})[r["direction"]] = r
+        return out
+
+    def counters(self, name: str) -> Dict[str, dict]:
+        """{"up": .., "down": ..} of one link (stops the process the first time)."""
+        return (self.stop() if self._counters is None else self._counters)[name]
+
+    def _records(self, path: Optional[Path], direction: str) -> List[dict]:
+        if path is None or not path.exists():
+            return []
+        return [r for r in (json.loads(l) for l in path.read_text().splitlines() if l)
+                if r["direction"] == direction]
+
+    def drops(self, name: str, direction: str = "up") -> List[dict]:
+        return self._records(self.drops_paths[name], direction)
+
+    def dropped(self, name: str, direction: str = "up") -> set:
+        """Indices of the datagrams this link did not forward (corrupted ones are forwarded)."""
+        return {r["index"] for r in self.drops(name, direction) if r["reason"] != "corrupted"}
+
+    def corrupted(self, name: str, direction: str = "up") -> set:
+        return {r["index"] for r in self.drops(name, direction) if r["reason"] == "corrupted"}
+
+    def sends(self, name: str, direction: str = "up") -> List[dict]:
+        """What the link sent (log_sends=True), in send order: written at stop or SIGUSR1."""
+        return self._records(self.sends_paths.get(name), direction)
+
+    def loss_rate(self, name: str, direction: str = "up") -> float:
+        c = self.counters(name)[direction]
+        lost = c["received"] - c["forwarded"]
+        return lost / c["received"] if c["received"] else 0.0
+
+
+# --- freezing a process ------------------------------------------------------------------------
+
+def _task_states(pid: int) -> List[str]:
+    """The state letter of every thread of a process (R, S, D, T, t, Z, ...); [] when gone."""
+    states = []
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except FileNotFoundError:
+        return []
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                stat = f.read()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        states.append(stat.rsplit(")", 1)[1].split()[0])  # the name may hold spaces and ')'
+    return states
+
+
+def process_state(pid: int) -> Optional[str]:
+    """The state letter of a process (its main thread) from /proc/PID/stat, None when gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+
+
+class Stall:
+    """Freezes a process with SIGSTOP and thaws it with SIGCONT, from a thread, on a schedule
+    fixed at construction (`plan`, reproducible from the seed): every `every` seconds (start to
+    start, drawn uniformly from the range) for `length` seconds, plus `long_stalls`
+    [(offset, length), ...] from the start. A regular stall that would begin inside a long one
+    is left out, and so is any stall that would end after `duration`: the thread never runs
+    past it. stop() ends it early; the process is always left running (SIGCONT in a finally).
+
+    Records, in monotonic time: `stalls` [(start, end)], start when every thread of the process
+    was seen stopped (/proc), end just before the SIGCONT: it was frozen throughout; `windows`
+    [(stop sent, SIGCONT returned)]: outside these it was not frozen by us. `count`."""
+
+    def __init__(self, pid: int, *, duration: float, every: Tuple[float, float] = (2.0, 2.5),
+                 length: float = 0.150, long_stalls: Sequence[Tuple[float, float]] = (),
+                 seed: int = 1):
+        self.pid = pid
+        self.duration = duration
+        rnd = random.Random(f"stall:{seed}")
+        longs = sorted((float(o), float(l)) for o, l in long_stalls)
+        plan = list(longs)
+        t = rnd.uniform(*every)
+        while t + length <= duration:
+            if not any(o <= t < o + l for o, l in longs):
+                plan.append((t, length))
+            t += rnd.uniform(*every)
+        plan.sort()
+        self.plan = [(o, l) for o, l in plan if o + l <= duration]
+        self.stalls: List[Tuple[float, float]] = []
+        self.windows: List[Tuple[float, float]] = []
+        self.t_start: Optional[float] = None
+        self.error: Optional[str] = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"stall-{pid}", daemon=True)
+
+    @property
+    def count(self) -> int:
+        return len(self.stalls)
+
+    def start(self) -> "Stall":
+        self.t_start = time.monotonic()
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 5.0) -> "Stall":
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        return self
+
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    def _wait_frozen(self, limit: float = 2.0) -> bool:
+        # SIGSTOP takes effect when the process next runs: wait until every thread shows it
+        # (even when stop() came meanwhile: a stall once begun is recorded).
+        deadline = time.monotonic() + limit
+        while True:
+            states = _task_states(self.pid)
+            if not states or "Z" in states or "X" in states:
+                return False
+            if all(s in "Tt" for s in states):
+                return True
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.0005)
+
+    def _run(self) -> None:
+        t0 = self.t_start
+        end_of_run = t0 + self.duration
+        for offset, length in self.plan:
+            if self._stop.wait(max(0.0, t0 + offset - time.monotonic())):
+                return
+            now = time.monotonic()
+            if now + length > end_of_run:     # late: a stall may not run past the duration
+                return
+            try:
+                sent = time.monotonic()
+                os.kill(self.pid, signal.SIGSTOP)
+                try:
+                    if not self._wait_frozen():
+                        self.error = f"process {self.pid} did not stop: {_task_states(self.pid)}"
+                        return
+                    frozen = time.monotonic()
+                    self._stop.wait(max(0.0, min(frozen + length, end_of_run) - frozen))
+                    thaw = time.monotonic()
+                finally:
+                    os.kill(self.pid, signal.SIGCONT)
+                self.windows.append((sent, time.monotonic()))
+                self.stalls.append((frozen, thaw))
+            except OSError as e:      # gone (ProcessLookupError) or not ours to signal
+                self.error = f"process {self.pid}: {e}"
+                return
+            if self._stop.is_set():
+                return
+
+    def summary(self) -> str:
+        lens = [round((e - s) * 1e3) for s, e in self.stalls]
+        at = [round(s - self.t_start, 2) for s, _ in self.stalls] if self.t_start else []
+        return f"{self.count} stalls of pid {self.pid} at {at} s, lasting {lens} ms"

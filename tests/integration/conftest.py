@@ -96,11 +96,11 @@ def tlog_files():
 @pytest.fixture
 def lab(mavbond_bin, tmp_path, plugin_dir):
     """Factories for gateways and link emulators; everything started is stopped at the end."""
-    from bonding_helpers import Emu, Gateway, udp_sock
+    from bonding_helpers import Emu, EmuGroup, Gateway, Stall, udp_sock
 
     class Lab:
         def __init__(self):
-            self.gateways, self.emus, self.socks = [], [], []
+            self.gateways, self.emus, self.socks, self.stalls = [], [], [], []
             self.workdir = tmp_path
 
         def gateway(self, endpoints, bonds=(), filters=(), name="mavbond", **top):
@@ -114,6 +114,22 @@ def lab(mavbond_bin, tmp_path, plugin_dir):
             self.emus.append(e)
             return e.start()
 
+        def emu_group(self, links, name="group", duration=None, log_sends=False):
+            """One linkemu process for several links (EmuGroup); links: dicts with name,
+            listen_port, forward_ports (one or a list: a tee), seed and link options."""
+            e = EmuGroup(tmp_path, name, links, duration=duration, log_sends=log_sends)
+            self.emus.append(e)
+            return e.start()
+
+        def stall(self, process, duration, **schedule):
+            """Stall(pid, duration=..., every=(2.0, 2.5), length=0.15, long_stalls=(),
+            seed=1) on a gateway, a Popen or a pid; started, and stopped at teardown."""
+            proc = getattr(process, "proc", process)
+            pid = getattr(proc, "pid", proc)
+            s = Stall(pid, duration=duration, **schedule)
+            self.stalls.append(s)
+            return s.start()
+
         def sock(self, port=0):
             s = udp_sock(port)
             self.socks.append(s)
@@ -121,29 +137,11 @@ def lab(mavbond_bin, tmp_path, plugin_dir):
 
     lab = Lab()
     yield lab
+    for s in lab.stalls:   # before the gateways go: none is left frozen
+        s.stop()
     for g in lab.gateways:
         g.kill()
     for e in lab.emus:
         e.kill()
     for s in lab.socks:
         s.close()
-
-
-# A test marked flaky that failed and was rerun is listed by -rR with its name only; why it
-# failed is printed here, so a result that needed a rerun can be looked into.
-_rerun_reasons: list = []
-
-
-def pytest_runtest_logreport(report):
-    if report.outcome == "rerun":
-        # The assertion's message when pytest has one, else the last line of the report.
-        crash = getattr(report.longrepr, "reprcrash", None)
-        lines = (crash.message if crash else str(report.longrepr)).strip().splitlines() or ["?"]
-        _rerun_reasons.append((report.nodeid, (lines[0] if crash else lines[-1])[:300]))
-
-
-def pytest_terminal_summary(terminalreporter):
-    if _rerun_reasons:
-        terminalreporter.section("why tests were rerun")
-        for nodeid, why in _rerun_reasons:
-            terminalreporter.write_line(f"{nodeid}: {why}")

@@ -68,17 +68,26 @@ def uart(name: str, device: str, baud: int = 921600, **kw) -> dict:
 
 # --- ports --------------------------------------------------------------------------------
 
+# Ports for the tests' own servers come from below the kernel's ephemeral range
+# (net.ipv4.ip_local_port_range, 32768-60999 by default): a port the kernel hands out for an
+# implicit bind (a client socket, an emulator's source port) can never be one of them, so
+# a port chosen here cannot be taken between the choice and the bind. Each process starts at
+# its own place in the range and walks on.
+_PORT_LOW, _PORT_HIGH = 10000, 32767
+_next_port = _PORT_LOW + (os.getpid() * 7919) % (_PORT_HIGH - _PORT_LOW)
+
+
 def free_port(kind=socket.SOCK_DGRAM) -> int:
-    """A port the kernel just handed out on 127.0.0.1 (free for both UDP and TCP when
-    possible)."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, kind) as s:
-            s.bind((HOST, 0))
-            port = s.getsockname()[1]
-        other = socket.SOCK_STREAM if kind == socket.SOCK_DGRAM else socket.SOCK_DGRAM
+    """A port below the ephemeral range, free on 127.0.0.1 for both UDP and TCP now, and not
+    handed out before by this process."""
+    global _next_port
+    for _ in range(_PORT_HIGH - _PORT_LOW):
+        port = _next_port
+        _next_port = _PORT_LOW if _next_port >= _PORT_HIGH else _next_port + 1
         try:
-            with socket.socket(socket.AF_INET, other) as s2:
-                s2.bind((HOST, port))
+            for k in (socket.SOCK_DGRAM, socket.SOCK_STREAM):
+                with socket.socket(socket.AF_INET, k) as s:
+                    s.bind((HOST, port))
             return port
         except OSError:
             continue

@@ -6,7 +6,9 @@ lost) or from the test's own deterministic dropping, never from the daemon's cou
 test prints its figures (run with -s to see them).
 
 Durations are chosen so the whole file runs in a few minutes on 2 cores; each test says how
-long it streams and why that is enough."""
+long it streams and why that is enough. Nothing here depends on the machine keeping time:
+dedup matches copies by identity, so a late emulator or a busy CPU changes when frames
+arrive, never which ones are delivered."""
 from __future__ import annotations
 
 import re
@@ -14,7 +16,6 @@ import random
 import subprocess
 import time
 from collections import Counter
-from pathlib import Path
 
 import pytest
 
@@ -22,13 +23,6 @@ from helpers import HOST, FrameMaker, free_port, udp_client, udp_server
 from bonding_helpers import (Receiver, content_key, gcs_hello, multiset_diff, paced_events,
                              paced_send, timestamp_of, tlog, with_seq, Ticker)
 from synth import ardupilot_stream
-
-# These tests judge links through emulators and two gateways, on real processes sharing the
-# machine's two CPUs: a stall of the machine (seen on the shared VM that runs CI) can fail one
-# that the code would pass.
-# Each attempt asserts everything; a test is retried at most twice, and scripts/test lists the
-# reruns (pytest -rR), so a flaky result is visible, never hidden.
-pytestmark = pytest.mark.flaky(reruns=2)
 
 
 def ground_gateway(lab, links, filters, name="ground", gcs_port=None, **top):
@@ -98,9 +92,6 @@ def test_two_lossy_links_delivered_loss_is_the_product(lab):
     print(f"[1] ground radio rx={ground_stats['radio']['rx_frames']} lte "
           f"rx={ground_stats['lte']['rx_frames']} gcs tx={ground_stats['gcs']['tx_frames']}; "
           f"air autopilot rx={air_stats['autopilot']['rx_frames']}")
-    if extra:
-        import pickle
-        Path("/tmp/t1-debug.pkl").write_bytes(pickle.dumps((sched, rx.frames, sorted(da), sorted(db))))
     assert not extra, f"{sum(extra.values())} duplicate frames delivered"
     assert not missing, f"{sum(missing.values())} frames that reached the ground were lost"
     assert delivered_loss <= 3 * pa * pb, (delivered_loss, pa * pb)
@@ -232,15 +223,7 @@ def test_identical_repeats_at_1000_per_second(lab, variant):
             dict(cycle=cycle, da=sorted(da), db=sorted(db), rx=rx.frames)))
     assert st["link_a"]["rx_frames"] == n - len(da) and st["link_b"]["rx_frames"] == n - len(db)
     assert not missing, f"{sum(missing.values())} legitimate repeats dropped"
-    # Every frame here recurs, so a copy that a stalled emulator delivers more than dedup's
-    # tolerance (60 ms) off its learned offset cannot be told from a new instance, and passes:
-    # dedup fails open. Judge duplicates whenever the links kept their timing.
-    late = max(ca["up"].get("late_max_ms", 0.0), cb["up"].get("late_max_ms", 0.0))
-    if late < 50:
-        assert not extra, f"{sum(extra.values())} duplicates delivered"
-    else:
-        print(f"[2 {variant}] an emulator ran {late:.0f} ms late (the machine stalled): "
-              f"{sum(extra.values())} duplicates not judged in this run")
+    assert not extra, f"{sum(extra.values())} duplicates delivered"
 
 
 # --- (3) one link down for 15 s -----------------------------------------------------------
@@ -482,12 +465,15 @@ def test_key_content_with_separate_sequence_counters(lab):
 
 # --- (7) one link 2 s late: no stale sample -----------------------------------------------
 
+STALE_AFTER = 0.25  # dedup's default stale_after
+
+
 def test_late_link_never_delivers_a_stale_sample(lab):
     """Link B is 2 s behind link A; A loses 10% (deterministic). dedup with window 5s
     (covers the skew). 124 frames/s for 8 s (992 frames). No timestamped sample (time_boot_ms
-    / time_usec, e.g. GLOBAL_POSITION_INT, ATTITUDE) is delivered after a newer one of its
-    (sysid, compid, msgid); frames without a timestamp that only B carried are still
-    delivered, 2 s late; nothing is delivered twice."""
+    / time_usec, e.g. GLOBAL_POSITION_INT, ATTITUDE) is delivered more than stale_after
+    (250 ms) behind a newer one of its (sysid, compid, msgid); frames without a timestamp that
+    only B carried are still delivered, 2 s late; nothing is delivered twice."""
     ga, gb = free_port(), free_port()
     g, gcs_port = ground_gateway(lab, {"link_a": ga, "link_b": gb},
                                  [{"plugin": "dedup", "bonds": ["vehicle"], "window": "5s"}])
@@ -504,14 +490,18 @@ def test_late_link_never_delivers_a_stale_sample(lab):
     paced_events(events, [(sa, (HOST, ga)), (sb, (HOST, gb))])
     rx.wait_quiet(0.5)
     got = [f for f in rx.stop() if tlog.sysid(f) == 1]
-    newest, backwards = {}, []
+    newest, backwards, slightly = {}, [], 0
     for f in got:
         ts = timestamp_of(f)
         if ts is None:
             continue
         key = (tlog.sysid(f), tlog.compid(f), tlog.msgid(f))
+        seconds_of = 1e-6 if ts[0] == "time_usec" else 1e-3
         if key in newest and ts[1] <= newest[key]:
-            backwards.append((key, ts, newest[key]))
+            if (newest[key] - ts[1]) * seconds_of > STALE_AFTER:
+                backwards.append((key, ts, newest[key]))
+            else:
+                slightly += 1
         newest[key] = max(ts[1], newest.get(key, -1))
     missing, extra = multiset_diff(frames, got)
     stale = [f for f in missing.elements() if timestamp_of(f) is not None]
@@ -521,7 +511,8 @@ def test_late_link_never_delivers_a_stale_sample(lab):
     print(f"\n[7] {n} frames; link A lost {len(da)} (only the late link B carried them); "
           f"stale samples dropped {len(stale)} ({pos} GLOBAL_POSITION_INT/ATTITUDE); frames "
           f"without a timestamp delivered late from B {untimed_late - untimed_missing}; "
-          f"timestamps going backwards {len(backwards)}; duplicates {sum(extra.values())}")
+          f"timestamps going backwards by more than {STALE_AFTER * 1000:.0f} ms {len(backwards)} "
+          f"(by less: {slightly}); duplicates {sum(extra.values())}")
     named = [b for b in backwards if b[0][2] in (33, 30)]  # GLOBAL_POSITION_INT, ATTITUDE
     assert not named, named[:5]
     assert not backwards, backwards[:5]

@@ -16,8 +16,6 @@ import pytest
 from helpers import HOST, FrameMaker, free_port, mav2, udp_server
 from bonding_helpers import Gateway, Receiver, Ticker, tlog, udp_sock
 
-pytestmark = pytest.mark.flaky(reruns=2)
-
 TICK = 0.1          # the monitor's period
 SEV = {"WARNING": 4, "NOTICE": 5, "CRITICAL": 2}
 

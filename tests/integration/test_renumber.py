@@ -24,8 +24,6 @@ from bonding_helpers import (Gateway, Receiver, content_key, multiset_diff, pace
 from synth import ardupilot_stream
 from test_metrics import scrape, status_document, tcp_port, value
 
-pytestmark = pytest.mark.flaky(reruns=2)
-
 
 def gcs_loss(frames):
     """Per source, the frames a GCS counts lost: sum of (seq - last - 1) mod 256."""

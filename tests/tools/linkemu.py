@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""linkemu: a UDP relay that emulates one telemetry link (radio or LTE) between two local ports.
+"""linkemu: a UDP relay that emulates one telemetry link (radio or LTE) between two local ports,
+or (--group) several links in one loop.
 
     side A  --udp-->  [--listen HOST:PORT]  linkemu  [--source]  --udp-->  [--forward HOST:PORT]  side B
             <--------------------------------------------------------------------------------------
@@ -8,6 +9,12 @@ Side A is whoever sends to the listen port (learned from its datagrams, like a U
 last sender wins). Everything from A goes to B ("up" direction); whatever B sends back to the
 emulator's source socket goes to A's last address ("down" direction). Datagrams from any other
 address than --forward on the source socket are ignored (counted as `foreign`).
+
+Tee: `--forward` may be given several times. Each up datagram, when due, is sent to every
+forward address, one right after the other, before any other datagram is sent. The down
+direction is taken from the FIRST forward address only; replies from the others are counted as
+`foreign` and not relayed. Counters count datagrams, not copies: `forwarded` when every copy
+was sent, `send_errors` when any copy failed.
 
 Each direction has its own, independent impairments. A plain option (`--loss 1%`) applies to both
 directions; `--up-loss` / `--down-loss` override it for one direction. The pipeline for one
@@ -18,8 +25,9 @@ datagram, in this order:
                 generator seeded by (--seed, direction), always the same count per datagram, so
                 every such decision depends only on the seed and the index, never on timing.
   2. outage     `--outage START+LEN` (repeatable): dropped if it arrives while
-                START <= t < START+LEN, t in seconds since the emulator started (not since the
-                first datagram), so two emulators started together have comparable schedules.
+                START <= t < START+LEN, t in seconds since the emulator (the group) started (not
+                since the first datagram), so two emulators started together have comparable
+                schedules, and the links of a group share one.
   3. loss       Bernoulli `--loss P` and/or Gilbert-Elliott `--ge p_gb,p_bg,loss_good,loss_bad`
                 (two-state Markov chain stepped once per datagram; starts in the good state; the
                 loss decision uses the current state, then the state transitions). Mean burst
@@ -40,20 +48,48 @@ datagram, in this order:
 
 Scheduled sends live in one heap driven by a select() loop with timeouts (select() has
 microsecond resolution); no thread per datagram. Time is CLOCK_MONOTONIC (time.monotonic()).
+Datagrams due at the same time leave in the order they arrived.
+
+Group: `--group SPEC.json` runs several links in ONE process and ONE loop, with one heap of due
+sends across all links, so whatever is due first leaves first whatever its link, and every
+receiver of a tee sees the same interleaving of the links. SPEC.json is a list of links:
+    [{"name": "radio", "listen": "127.0.0.1:14601", "forward": ["127.0.0.1:14551",
+      "127.0.0.1:14561"], "seed": 1, "loss": "1%", "up-delay": "20ms", "outage": ["5s+2s"],
+      "log_drops": "radio-drops.jsonl"},
+     {"name": "lte", "listen": "127.0.0.1:14602", "forward": "127.0.0.1:14552", "seed": 2}]
+Each link takes the CLI's link options (with - or _, e.g. "up-loss" or "up_loss"; "reorder":
+true; values as strings like "1%", "40ms" or plain numbers: probability, seconds, bit/s) and
+"source", "log_drops", "log_sends" (its own files). Each link keeps its own seed and decisions,
+which depend only on (seed, direction, index): link "radio" with seed 1 drops exactly what a
+single linkemu with --seed 1 and the same options drops. Outages count from the group's start.
+--group takes --duration; every other option goes in the spec. Banner: one line per link,
+`linkemu: link NAME: listening on H:P, forwarding to H:P[, H:P] from H:P, seed N`, then,
+once the group's clock has started (its outages count from before this line),
+`linkemu: group of N links listening`.
 
 Counters: on exit (--duration elapsed, SIGTERM, SIGINT) and on SIGUSR1, one JSON line per
-direction is printed to stdout:
+direction is printed to stdout (in a group: per link and direction, with a "link" field first):
   {"direction": "up", "t": 12.3, "received": .., "forwarded": .., "dropped_loss": ..,
    "dropped_outage": .., "dropped_queue": .., "dropped_no_peer": .., "corrupted": .., ...}
 `--log-drops FILE` writes one JSON line per dropped datagram: {"direction", "index", "reason",
 "t"} with reason loss | outage | queue | no_peer, and one line with reason "corrupted" (plus
 "bit") for each corrupted datagram; those are NOT drops (the datagram was still forwarded
 unless a later line drops the same index for "queue").
+`--log-sends FILE` writes one JSON line per datagram sent: {"direction", "index", "arrived",
+"due", "sent", "n"}: when it arrived, when it was due and when it was sent (s since the start,
+unrounded), n its place among all the sends of the process (of every link of a group). This is
+the emulator's own account of what it decided and did, independent of anybody's scheduling:
+sent - due is how late the loop was.
 
-Importable:  from linkemu import LinkEmulator
+Importable:  from linkemu import LinkEmulator, LinkGroup
     emu = LinkEmulator(listen="127.0.0.1:0", forward="127.0.0.1:14550", seed=1, loss="1%",
                        down_delay="40ms", outage=["10s+15s"], record_drops=True)
     emu.start(); ...; emu.stop(); emu.counters(); emu.drops()
+    tee = LinkEmulator("127.0.0.1:0", ["127.0.0.1:14550", "127.0.0.1:14560"], seed=1)
+    group = LinkGroup([dict(name="radio", listen="127.0.0.1:0", forward=[...], seed=1,
+                            loss="1%"), dict(name="lte", ...)], record_drops=True)
+    group.start(); group.link("radio").listen_addr; group.counters()["radio"]["up"];
+    group.drops("radio"); group.sends("radio")   # sends: record_sends=True
 Options take the CLI's strings ("1%", "40ms") or plain numbers (probability, seconds, bit/s).
 
 Stdlib only (Python 3.11).
@@ -259,13 +295,17 @@ def resolve_configs(opts: Dict[str, object]) -> Dict[str, DirConfig]:
 # --- one direction -----------------------------------------------------------------------------
 
 class _Direction:
-    def __init__(self, name: str, cfg: DirConfig, seed: int, record: Optional[list]):
+    def __init__(self, name: str, cfg: DirConfig, seed: int, record: Optional[list],
+                 sends: Optional[list] = None):
         self.name = name
+        self.up = name == "up"
         self.cfg = cfg
         # String seeds are hashed with SHA-512 by random.Random: stable across runs/processes.
         self.rng = random.Random(f"linkemu:{seed}:{name}:decide")
         self.jrng = random.Random(f"linkemu:{seed}:{name}:jitter")
         self.record = record
+        self.sends = sends             # one dict per datagram sent, when asked for
+        self.link: Optional["Link"] = None
         self.index = 0
         self.ge_bad = False
         self.busy_until = 0.0
@@ -285,7 +325,7 @@ class _Direction:
                                     t=round(rel, 6), **extra))
 
     def admit(self, data: bytes, now: float, rel: float, have_peer: bool = True):
-        """One received datagram -> (due_time, data) to schedule, or None if dropped."""
+        """One received datagram -> (due_time, data, index) to schedule, or None if dropped."""
         cfg = self.cfg
         idx = self.index
         self.index += 1
@@ -355,7 +395,7 @@ class _Direction:
                 t = self.last_due
             self.last_due = t
         self.scheduled += 1
-        return t, data
+        return t, data, idx
 
     def counters(self, rel: float) -> dict:
         d = dict(direction=self.name, t=round(rel, 3))
@@ -365,7 +405,7 @@ class _Direction:
         return d
 
 
-# --- the emulator ------------------------------------------------------------------------------
+# --- one link ----------------------------------------------------------------------------------
 
 def _resolve(host: str, port: int) -> Tuple[int, tuple]:
     infos = socket.getaddrinfo(host, port, 0, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
@@ -375,31 +415,71 @@ def _resolve(host: str, port: int) -> Tuple[int, tuple]:
 
 def _udp_socket(fam: int, bind: tuple) -> socket.socket:
     s = socket.socket(fam, socket.SOCK_DGRAM)
-    for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
-        try:
-            s.setsockopt(socket.SOL_SOCKET, opt, SOCK_BUF)
-        except OSError:
-            pass
+    # Forced past net.core.rmem_max when privileged (the tests run as root): a stock kernel
+    # caps an unprivileged buffer at about 212 KB, a third of a second at 1 kHz.
+    for force, opt in ((33, socket.SO_RCVBUF), (32, socket.SO_SNDBUF)):  # SO_*BUFFORCE
+        for o in (force, opt):
+            try:
+                s.setsockopt(socket.SOL_SOCKET, o, SOCK_BUF)
+                break
+            except OSError:
+                continue
     s.bind(bind)
     s.setblocking(False)
     return s
 
 
-class LinkEmulator:
-    """One emulated link. Sockets are bound in the constructor (listen port 0 -> see
-    `listen_addr`); `start()` runs the loop in a daemon thread, `run()` in the caller's."""
+def _forward_list(v) -> list:
+    """'H:P' | (host, port) | a list of either -> a non-empty list of addresses."""
+    if isinstance(v, str) or (isinstance(v, (tuple, list)) and len(v) == 2
+                              and isinstance(v[1], int)):
+        return [v]
+    out = list(v or [])
+    if not out:
+        raise ValueError("no --forward address")
+    return out
 
-    def __init__(self, listen="127.0.0.1:0", forward="127.0.0.1:14550", *,
-                 seed: Optional[int] = None, duration=None, source=None,
-                 log_drops: Optional[str] = None, record_drops: bool = False,
-                 out: Optional[IO[str]] = None, **link_opts):
+
+class _JsonLog:
+    """Appends the records of a list to a file, each record once (flushed on every dump)."""
+
+    def __init__(self, path: Optional[str], records: Optional[list]):
+        self.path, self.records, self.written = path, records, 0
+
+    def flush(self) -> None:
+        if self.path is None or self.records is None:
+            return
+        new = self.records[self.written:]
+        with open(self.path, "a" if self.written else "w") as f:
+            for r in new:
+                f.write(json.dumps(r) + "\n")
+        self.written += len(new)
+
+
+class Link:
+    """One emulated link: the listen socket (side A), the source socket that talks to side B,
+    the forward addresses (several = a tee: the up direction goes to each of them, the down
+    direction is taken from the first only) and the two directions. Sockets are bound here.
+    It runs inside a LinkGroup's loop."""
+
+    def __init__(self, name: str = "", listen="127.0.0.1:0", forward="127.0.0.1:14550", *,
+                 seed: Optional[int] = None, source=None, log_drops: Optional[str] = None,
+                 record_drops: bool = False, log_sends: Optional[str] = None,
+                 record_sends: bool = False, **link_opts):
+        self.name = name
         self.configs = resolve_configs(link_opts)
         self.seed = random.SystemRandom().randrange(2 ** 32) if seed is None else int(seed)
-        self.duration = None if duration in (None, 0, "0") else parse_duration(duration)
         lhost, lport = parse_addr(listen, "--listen address")
-        fhost, fport = parse_addr(forward, "--forward address")
         lfam, laddr = _resolve(lhost, lport)
-        ffam, self.forward_addr = _resolve(fhost, fport)
+        self.forward_addrs: List[tuple] = []
+        ffam = None
+        for f in _forward_list(forward):
+            fam, addr = _resolve(*parse_addr(f, "--forward address"))
+            if ffam is not None and fam != ffam:
+                raise ValueError("--forward addresses of one link must be of one family")
+            ffam = fam
+            self.forward_addrs.append(addr)
+        self.forward_addr = self.forward_addrs[0]    # the only one replies are taken from
         if source is not None:
             shost, sport = parse_addr(source, "--source address")
             _, saddr = _resolve(shost, sport)
@@ -413,14 +493,87 @@ class LinkEmulator:
             raise
         self.listen_addr = self.sock_a.getsockname()[:2]
         self.source_addr = self.sock_b.getsockname()[:2]
-        self.out = out if out is not None else sys.stdout
         self._record: Optional[list] = [] if (record_drops or log_drops) else None
-        self._log_path = log_drops
-        self._log_written = 0
-        self.dirs = {d: _Direction(d, self.configs[d], self.seed, self._record)
+        self._sends: Optional[list] = [] if (record_sends or log_sends) else None
+        self._logs = [_JsonLog(log_drops, self._record), _JsonLog(log_sends, self._sends)]
+        self.dirs = {d: _Direction(d, self.configs[d], self.seed, self._record, self._sends)
                      for d in DIRECTIONS}
+        for d in self.dirs.values():
+            d.link = self
         self.peer_a: Optional[tuple] = None
         self.foreign = 0
+        self.closed = False
+
+    def counters(self, rel: float, with_name: bool = False) -> Dict[str, dict]:
+        out = {}
+        for d in DIRECTIONS:
+            row = {"link": self.name} if with_name else {}
+            row.update(self.dirs[d].counters(rel))
+            row["foreign"] = self.foreign if d == "down" else 0
+            out[d] = row
+        return out
+
+    def drops(self) -> List[dict]:
+        """Drop (and corruption) records so far; needs record_drops=True or log_drops."""
+        return list(self._record or [])
+
+    def sends(self) -> List[dict]:
+        """One record per datagram sent: {"direction", "index", "arrived", "due", "sent", "n"},
+        times in s since the start, n its place in the group's sends; needs record_sends=True
+        or log_sends."""
+        return list(self._sends or [])
+
+    def flush_logs(self) -> None:
+        for log in self._logs:
+            log.flush()
+
+    def banner(self) -> str:
+        la, sa = self.listen_addr, self.source_addr
+        fwd = ", ".join(f"{h}:{p}" for h, p in (a[:2] for a in self.forward_addrs))
+        return (f"listening on {la[0]}:{la[1]}, forwarding to {fwd} from {sa[0]}:{sa[1]}, "
+                f"seed {self.seed}")
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self.sock_a.close()
+            self.sock_b.close()
+
+
+# --- the loop ----------------------------------------------------------------------------------
+
+class LinkGroup:
+    """Several links driven by ONE loop: one heap of due sends across all links, so a datagram
+    due before another leaves first whatever link either is on, and a tee's receivers all see
+    the same interleaving of the links. Each link keeps its own options, seed, decisions,
+    counters and logs; outages count from the group's start. `start()` runs the loop in a
+    daemon thread, `run()` in the caller's.
+
+        group = LinkGroup([dict(name="radio", listen="127.0.0.1:0", forward=[g1, g2], seed=1,
+                                loss="1%"), dict(name="lte", ...)], duration="60s")
+    """
+
+    def __init__(self, links: Sequence = (), *, duration=None, out: Optional[IO[str]] = None,
+                 record_drops: bool = False, record_sends: bool = False):
+        self.links: List[Link] = []
+        try:
+            for spec in links:
+                if not isinstance(spec, Link):
+                    spec = dict(spec)
+                    spec.setdefault("record_drops", record_drops)
+                    spec.setdefault("record_sends", record_sends)
+                    spec = Link(**spec)
+                self.links.append(spec)
+        except BaseException:
+            for link in self.links:
+                link.close()
+            raise
+        names = [link.name for link in self.links]
+        if len(set(names)) != len(names):
+            self.close_links()
+            raise ValueError(f"link names must differ: {names}")
+        self.duration = None if duration in (None, 0, "0") else parse_duration(duration)
+        self.out = out if out is not None else sys.stdout
         self.t0: Optional[float] = None
         self._stop = False
         self._dump = False
@@ -430,6 +583,13 @@ class LinkEmulator:
         self._thread: Optional[threading.Thread] = None
         self._closed = False
         self.started = threading.Event()
+        self.on_start: Optional[Callable[[], None]] = None   # called once t0 is set
+
+    def link(self, name: str) -> Link:
+        for link in self.links:
+            if link.name == name:
+                return link
+        raise KeyError(name)
 
     # control (thread- and signal-safe: set a flag, wake the loop)
     def _wake(self) -> None:
@@ -446,13 +606,13 @@ class LinkEmulator:
         self._dump = True
         self._wake()
 
-    def start(self) -> "LinkEmulator":
+    def start(self):
         self._thread = threading.Thread(target=self.run, name="linkemu", daemon=True)
         self._thread.start()
         self.started.wait(5)
         return self
 
-    def stop(self, timeout: float = 5.0) -> dict:
+    def stop(self, timeout: float = 5.0):
         self.request_stop()
         if self._thread is not None:
             self._thread.join(timeout)
@@ -465,78 +625,95 @@ class LinkEmulator:
     def __exit__(self, *exc):
         self.stop()
 
+    def close_links(self) -> None:
+        for link in self.links:
+            link.close()
+
     def close(self) -> None:
         if self._closed or (self._thread is not None and self._thread.is_alive()):
             return
         self._closed = True
-        for s in (self.sock_a, self.sock_b):
-            s.close()
+        self.close_links()
         for fd in (self._rpipe, self._wpipe):
             os.close(fd)
 
     def elapsed(self) -> float:
         return 0.0 if self.t0 is None else time.monotonic() - self.t0
 
-    def counters(self) -> Dict[str, dict]:
+    def counters(self) -> Dict[str, Dict[str, dict]]:
+        """{link name: {"up": {...}, "down": {...}}}, each row with a "link" field."""
         rel = self.elapsed()
-        out = {d: self.dirs[d].counters(rel) for d in DIRECTIONS}
-        out["up"]["foreign"] = 0
-        out["down"]["foreign"] = self.foreign
-        return out
+        return {link.name: link.counters(rel, with_name=True) for link in self.links}
 
-    def drops(self) -> List[dict]:
-        """Drop (and corruption) records so far; needs record_drops=True or log_drops."""
-        return list(self._record or [])
+    def drops(self, name: str) -> List[dict]:
+        return self.link(name).drops()
+
+    def sends(self, name: str) -> List[dict]:
+        return self.link(name).sends()
+
+    def _counter_rows(self) -> List[dict]:
+        return [row for per_link in self.counters().values() for row in per_link.values()]
 
     def dump(self) -> None:
-        """Print the counters (one JSON line per direction) and flush the drop log."""
-        for d in self.counters().values():
-            self.out.write(json.dumps(d) + "\n")
+        """Print the counters (one JSON line per link and direction) and flush the logs."""
+        for row in self._counter_rows():
+            self.out.write(json.dumps(row) + "\n")
         self.out.flush()
-        self._flush_log()
+        for link in self.links:
+            link.flush_logs()
 
-    def _flush_log(self) -> None:
-        if self._log_path is None or self._record is None:
-            return
-        new = self._record[self._log_written:]
-        with open(self._log_path, "a" if self._log_written else "w") as f:
-            for r in new:
-                f.write(json.dumps(r) + "\n")
-        self._log_written += len(new)
-
-    # the loop
     def run(self) -> None:
         mono = time.monotonic
         heappush, heappop = heapq.heappush, heapq.heappop
-        up, down = self.dirs["up"], self.dirs["down"]
-        sa, sb, rp = self.sock_a, self.sock_b, self._rpipe
-        fwd = self.forward_addr
-        heap: List[tuple] = []     # (due, seq, direction, data)
-        seq = 0
+        heap: List[tuple] = []     # (due, seq, direction, data, index, arrived)
+        seq = 0                    # admission order: breaks ties between equal due times
+        n_sent = 0
+        # socket -> (its link, True for the listen socket (side A))
+        role = {}
+        for link in self.links:
+            role[link.sock_a] = (link, True)
+            role[link.sock_b] = (link, False)
+        rp = self._rpipe
+        rlist = [rp, *role]
         t0 = self.t0 = mono()
         deadline = t0 + self.duration if self.duration else math.inf
-        rlist = [sa, sb, rp]
         self.started.set()
+        if self.on_start is not None:
+            self.on_start()
         try:
             while not self._stop:
                 now = mono()
                 if now >= deadline:
                     break
-                # 1. everything due
+                # 1. everything due, in due order across all links. Each datagram goes to
+                # every forward address of its link before the next datagram is looked at.
                 while heap and heap[0][0] <= now:
-                    due, _, d, data = heappop(heap)
+                    due, _, d, data, idx, arrived = heappop(heap)
                     late = now - due
                     if late > d.late_max:
                         d.late_max = late
-                    try:
-                        if d is up:
-                            sb.sendto(data, fwd)
-                        else:
-                            sa.sendto(data, self.peer_a)
+                    link = d.link
+                    ok = True
+                    if d.up:
+                        for addr in link.forward_addrs:
+                            try:
+                                link.sock_b.sendto(data, addr)
+                            except OSError:
+                                ok = False
+                    else:
+                        try:
+                            link.sock_a.sendto(data, link.peer_a)
+                        except OSError:
+                            ok = False
+                    if ok:
                         d.c["forwarded"] += 1
                         d.c["bytes_forwarded"] += len(data)
-                    except OSError:
+                    else:
                         d.c["send_errors"] += 1
+                    if d.sends is not None:
+                        d.sends.append(dict(direction=d.name, index=idx, arrived=arrived - t0,
+                                            due=due - t0, sent=now - t0, n=n_sent))
+                    n_sent += 1
                     now = mono()
                 if self._dump:
                     self._dump = False
@@ -555,6 +732,8 @@ class LinkEmulator:
                         except BlockingIOError:
                             pass
                         continue
+                    link, side_a = role[s]
+                    primary = link.forward_addr[:2]
                     for _ in range(RECV_BATCH):
                         try:
                             data, addr = s.recvfrom(MAX_DATAGRAM)
@@ -563,21 +742,63 @@ class LinkEmulator:
                         except OSError:   # e.g. ICMP errors reported on the socket
                             continue
                         now = mono()
-                        if s is sa:
-                            self.peer_a = addr
-                            d = up
+                        if side_a:
+                            link.peer_a = addr
+                            d = link.dirs["up"]
                             r = d.admit(data, now, now - t0)
                         else:
-                            if addr[:2] != fwd[:2]:
-                                self.foreign += 1
+                            # replies only from the first forward address (a tee's others
+                            # are receivers only)
+                            if addr[:2] != primary:
+                                link.foreign += 1
                                 continue
-                            d = down
-                            r = d.admit(data, now, now - t0, self.peer_a is not None)
+                            d = link.dirs["down"]
+                            r = d.admit(data, now, now - t0, link.peer_a is not None)
                         if r is not None:
                             seq += 1
-                            heappush(heap, (r[0], seq, d, r[1]))
+                            heappush(heap, (r[0], seq, d, r[1], r[2], now))
         finally:
             self._stop = True
+
+
+class LinkEmulator(LinkGroup):
+    """One emulated link: a group of one, with the single link's attributes (listen_addr,
+    source_addr, forward_addr(s), seed, dirs, ...) and its counters and drops without a link
+    name. Sockets are bound in the constructor (listen port 0 -> see `listen_addr`)."""
+
+    def __init__(self, listen="127.0.0.1:0", forward="127.0.0.1:14550", *,
+                 seed: Optional[int] = None, duration=None, source=None,
+                 log_drops: Optional[str] = None, record_drops: bool = False,
+                 log_sends: Optional[str] = None, record_sends: bool = False,
+                 out: Optional[IO[str]] = None, **link_opts):
+        link = Link("", listen, forward, seed=seed, source=source, log_drops=log_drops,
+                    record_drops=record_drops, log_sends=log_sends,
+                    record_sends=record_sends, **link_opts)
+        super().__init__([link], duration=duration, out=out)
+        for attr in ("configs", "seed", "forward_addr", "forward_addrs", "listen_addr",
+                     "source_addr", "dirs", "sock_a", "sock_b"):
+            setattr(self, attr, getattr(link, attr))
+
+    @property
+    def peer_a(self) -> Optional[tuple]:
+        return self.links[0].peer_a
+
+    @property
+    def foreign(self) -> int:
+        return self.links[0].foreign
+
+    def counters(self) -> Dict[str, dict]:
+        return self.links[0].counters(self.elapsed())
+
+    def drops(self) -> List[dict]:
+        """Drop (and corruption) records so far; needs record_drops=True or log_drops."""
+        return self.links[0].drops()
+
+    def sends(self) -> List[dict]:
+        return self.links[0].sends()
+
+    def _counter_rows(self) -> List[dict]:
+        return list(self.counters().values())
 
 
 # --- CLI ---------------------------------------------------------------------------------------
@@ -586,22 +807,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="linkemu",
         description="Relay UDP between --listen (side A) and --forward (side B), emulating one "
-                    "lossy, delayed, rate-limited telemetry link in each direction.",
+                    "lossy, delayed, rate-limited telemetry link in each direction; or, with "
+                    "--group, several links in one loop.",
         epilog="Every link option X also exists as --up-X (A->B only) and --down-X (B->A "
                "only), which override --X for that direction. Durations take units (us, ms, s; "
                "bare numbers are seconds for --outage and --duration), probabilities take % or "
                "a fraction. Counters: one JSON line per direction on stdout at exit and on "
                "SIGUSR1. See the module docstring for the exact semantics.",
     )
-    p.add_argument("--listen", required=True, metavar="HOST:PORT",
+    p.add_argument("--listen", metavar="HOST:PORT",
                    help="where side A sends to (port 0: pick one, printed on stderr)")
-    p.add_argument("--forward", required=True, metavar="HOST:PORT", help="side B's address")
+    p.add_argument("--forward", action="append", metavar="HOST:PORT",
+                   help="side B's address; repeat it to tee the up direction to several "
+                        "receivers (replies are taken from the first only)")
+    p.add_argument("--group", metavar="SPEC.json",
+                   help="run the links of this JSON list in one loop (see the module "
+                        "docstring); instead of --listen/--forward and link options")
     p.add_argument("--source", metavar="HOST:PORT",
                    help="bind the socket that talks to B here (default: ephemeral port)")
     p.add_argument("--seed", type=int, help="random seed (default: random, printed on stderr)")
     p.add_argument("--duration", metavar="T", help="exit by itself after T (e.g. 30s)")
     p.add_argument("--log-drops", metavar="FILE",
                    help="write one JSON line per dropped (or corrupted) datagram")
+    p.add_argument("--log-sends", metavar="FILE",
+                   help="write one JSON line per datagram sent: index, arrival, due and send "
+                        "times")
     for name, (_, metavar, help_) in PARAMS.items():
         flag = name.replace("_", "-")
         for prefix, h in (("", help_), ("up-", argparse.SUPPRESS), ("down-", argparse.SUPPRESS)):
@@ -617,6 +847,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+_LINK_KEYS = ("name", "listen", "forward", "seed", "source", "log_drops", "log_sends")
+
+
+def load_group_spec(path: str) -> List[dict]:
+    """The --group file: a JSON list of links, each {"name", "listen", "forward" (one address
+    or a list), "seed", optional "source", "log_drops", "log_sends", and link options named as
+    on the command line ("loss", "up-delay" or "up_delay", "outage": [...], "reorder": true)}."""
+    with open(path) as f:
+        spec = json.load(f)
+    if not isinstance(spec, list) or not spec:
+        raise ValueError(f"{path}: want a non-empty JSON list of links")
+    links = []
+    for i, item in enumerate(spec):
+        if not isinstance(item, dict):
+            raise ValueError(f"{path}: link {i} is not an object")
+        link = {k.replace("-", "_"): v for k, v in item.items()}
+        for key in ("name", "listen", "forward"):
+            if key not in link:
+                raise ValueError(f"{path}: link {i} has no {key!r}")
+        links.append(link)
+    return links
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
@@ -626,9 +879,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             v = getattr(a, prefix + name)
             if v is not None:
                 link_opts[prefix + name] = v
+    if a.group:
+        single = [f for f, v in (("--listen", a.listen), ("--forward", a.forward),
+                                 ("--source", a.source), ("--seed", a.seed),
+                                 ("--log-drops", a.log_drops), ("--log-sends", a.log_sends))
+                  if v is not None]
+        if single or link_opts:
+            parser.error(f"with --group, {', '.join(single) or 'link options'} go in the "
+                         f"group's spec, per link")
+    elif a.listen is None or a.forward is None:
+        parser.error("the following arguments are required: --listen, --forward (or --group)")
     try:
-        emu = LinkEmulator(a.listen, a.forward, seed=a.seed, duration=a.duration,
-                           source=a.source, log_drops=a.log_drops, **link_opts)
+        if a.group:
+            emu = LinkGroup(load_group_spec(a.group), duration=a.duration)
+        else:
+            emu = LinkEmulator(a.listen, a.forward, seed=a.seed, duration=a.duration,
+                               source=a.source, log_drops=a.log_drops, log_sends=a.log_sends,
+                               **link_opts)
     except (ValueError, TypeError) as e:
         parser.error(str(e))
     except OSError as e:
@@ -637,9 +904,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: emu.request_stop())
     signal.signal(signal.SIGINT, lambda *_: emu.request_stop())
     signal.signal(signal.SIGUSR1, lambda *_: emu.request_dump())
-    la, fa, sa = emu.listen_addr, emu.forward_addr, emu.source_addr
-    print(f"linkemu: listening on {la[0]}:{la[1]}, forwarding to {fa[0]}:{fa[1]} from "
-          f"{sa[0]}:{sa[1]}, seed {emu.seed}", file=sys.stderr, flush=True)
+    if a.group:
+        for link in emu.links:
+            print(f"linkemu: link {link.name}: {link.banner()}", file=sys.stderr)
+        # Printed once the clock runs: whoever reads it knows the group's t0 is behind it.
+        emu.on_start = lambda: print(f"linkemu: group of {len(emu.links)} links listening",
+                                     file=sys.stderr, flush=True)
+    else:
+        print(f"linkemu: {emu.links[0].banner()}", file=sys.stderr, flush=True)
     emu.run()
     emu.dump()
     emu.close()

@@ -1,4 +1,4 @@
-// The link-event rules on a manual clock: detection from receive counters, severities, texts,
+// The link-event rules on a manual clock: detection from arrival times, severities, texts,
 // and the rate limit counted exactly.
 #include "core/link_events.h"
 
@@ -23,10 +23,12 @@ protected:
     void run(int ms, bool radio_up, bool lte_up) {
         for (int t = 0; t < ms; t += 100) {
             now_ += milliseconds(100);
-            rx_radio_ += radio_up ? 1 : 0;
-            rx_lte_ += lte_up ? 1 : 0;
-            ev_.observe_link(radio_, rx_radio_, now_);
-            ev_.observe_link(lte_, rx_lte_, now_);
+            if (radio_up)
+                radio_heard_ = now_;
+            if (lte_up)
+                lte_heard_ = now_;
+            ev_.observe_link(radio_, radio_heard_, now_);
+            ev_.observe_link(lte_, lte_heard_, now_);
             ev_.observe_bond(bond_, active_, switches_, now_);
             auto out = ev_.poll(now_);
             for (auto& n : out.notices) {
@@ -40,7 +42,8 @@ protected:
     LinkEvents ev_;
     uint32_t bond_, radio_, lte_;
     TimePoint now_ = TimePoint{} + seconds(1000);
-    uint64_t rx_radio_ = 0, rx_lte_ = 0, switches_ = 0;
+    TimePoint radio_heard_{}, lte_heard_{};  // epoch: never
+    uint64_t switches_ = 0;
     std::string active_;
     std::vector<LinkEvents::Notice> notices_;
     std::vector<TimePoint> notice_times_;
@@ -144,15 +147,16 @@ TEST(LinkEvents, GlobalCapHoldsTheRestOldestFirst) {
     for (int i = 0; i < 8; i++)
         links.push_back(ev.add_link(bond, "l" + std::to_string(i)));
     TimePoint now = TimePoint{} + seconds(100);
+    const TimePoint heard = now;
     for (uint32_t l : links)
-        ev.observe_link(l, 1, now);
+        ev.observe_link(l, heard, now);
     ev.poll(now);
     // All fall silent at once: announced in link order, five now, three 10 s later.
     std::vector<std::string> sent;
     for (int tick = 1; tick <= 120; tick++) {
         now += milliseconds(100);
         for (uint32_t l : links)
-            ev.observe_link(l, 1, now);
+            ev.observe_link(l, heard, now);
         for (auto& n : ev.poll(now).notices)
             sent.push_back(n.text);
         if (tick == 20) {
