@@ -237,6 +237,9 @@ typedef struct mavbond_host_api {
      * checking names in options at create, before any link exists. */
     int (*cfg_bond_members)(const mavbond_config *c, const char *bond, const char *const **names,
                             size_t *count);
+    /* ABI 3: the names of every bond the config declares, in config order (valid for the
+     * instance's life). */
+    void (*cfg_bonds)(const mavbond_config *c, const char *const **names, size_t *count);
     /* ABI 3: as cfg_error, at item `index` of a list option (the item's own line:column). */
     void (*cfg_item_error)(const mavbond_config *c, const char *key, size_t index,
                            const char *message, char *err, size_t err_len);

@@ -2,17 +2,27 @@
 //
 // Per bond in scope, only frames from the active link pass on ingress; the others are dropped
 // and counted. Every member is monitored (when it was last heard, its loss over `loss_window`
-// from MAVLink sequence gaps), so the switch goes to a backup known to be alive instead of
-// blindly to "the other link" as in the paper. A host timer checks for silence, so a switch
-// happens within switch_after + one tick. Reasons to switch, in order:
-//   1. the active link is silent for `switch_after` (always allowed, even inside hold_down);
-//   2. its loss over `loss_window` exceeds `max_loss` and an alive backup does better;
+// from the stream positions the host gives each frame), so the switch goes to a backup known
+// to be alive instead of blindly to "the other link" as in the paper. A host timer checks for
+// silence, so a switch happens within switch_after + one tick. Reasons to switch, in order:
+//   1. silence: the active link is silent for `switch_after` (always allowed, even inside
+//      hold_down, and to any link heard now, on probation or not: a dead active link is worse
+//      than any other);
+//   2. loss: its loss over `loss_window` exceeds `max_loss` and a backup is clearly better
+//      (lower by `switch_margin` and beyond chance, see clearly_better());
 //   3. failback: a more preferred link has been healthy for `failback_after`.
-// 2 and 3 wait for `hold_down` after the previous switch, so two links of similar quality do
-// not flap. Frames toward the peer are not touched: the host's bond tx policy decides that.
+// 2 and 3 wait for `hold_down` after the previous switch. A loss figure is judged only once
+// the link has been heard for a whole window holding enough frames (see judged()), and a
+// link back from silence is on probation: no loss switch goes to it before it has been
+// healthy for failback_after.
+//
+// The links of a bond carry one stream fanned out by the other side, so copies share their
+// sequence bytes. The bond remembers, per source, which recent sequence numbers it delivered;
+// after a switch the new active link's copies of frames the old one delivered are dropped,
+// and what the old link lost but the new one carries is delivered (DeliveredHistory).
+// Frames toward the peer are not touched: the host's bond tx policy decides that.
 #include <algorithm>
 #include <array>
-#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -21,13 +31,10 @@
 
 #include "json_out.h"
 #include "mavbond/filter.hpp"
-#include "seq_loss.h"
 
 namespace {
 
 using mavbond_plugins::JsonOut;
-using mavbond_plugins::SeqStep;
-using mavbond_plugins::SourceTable;
 
 constexpr uint64_t kMs = 1'000'000;
 constexpr uint64_t kSecond = 1'000'000'000;
@@ -36,26 +43,50 @@ constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 // 1 s detection within 1.05 s at negligible cost; 5 ms stops a tiny switch_after spinning.
 constexpr uint64_t kMaxTick = 50 * kMs;
 constexpr uint64_t kMinTick = 5 * kMs;
-// The loss window is a ring of buckets, so expiry is O(1) per frame.
+// The loss window's resolution: buckets of loss_window / 10.
 constexpr size_t kLossBuckets = 10;
-// Below this many expected frames in the window a loss rate is noise (one lost heartbeat of
-// ten would read as 10%), so the link counts as "loss unknown", neither good nor bad.
-constexpr int64_t kMinExpected = 20;
+// A loss figure over fewer expected frames is not judged: one frame is then more than a
+// percentage point, and at the default max_loss (5%) the threshold is 5 lost frames, the
+// usual minimum (n*p >= 5) for treating a count of losses as normal, which the comparison in
+// clearly_better() does.
+constexpr int64_t kMinExpected = 100;
+// A backup is better beyond chance when its loss is this many standard errors below the
+// active link's (two-proportion z-test, one-sided 0.1%). The test is repeated every tick on
+// sliding windows, so it has to be strict: simulated over two links of equal loss (2% to 10%,
+// 50 to 124 frames/s, 5 s window, switch_margin 5%) this makes fewer than 5 switches an
+// hour, where "the backup does better" made about 500.
+constexpr double kBetterZ = 3.09;
+// Sources (sysid, compid) per bond whose delivered sequence numbers are remembered: the host
+// tracks as many per link.
+constexpr uint32_t kHistorySources = 64;
 
 const mavbond_option kOptions[] = {
     {"switch_after", MAVBOND_OPT_DURATION, "1s",
      "switch when the active link has been silent this long (the paper: 1s)"},
-    {"loss_window", MAVBOND_OPT_DURATION, "5s", "window over which each link's loss is measured"},
+    {"loss_window", MAVBOND_OPT_DURATION, "5s",
+     "window over which each link's loss is measured; judged only once the link has been heard "
+     "for a whole window holding at least 100 expected frames"},
     {"max_loss", MAVBOND_OPT_PERCENT, "5%",
-     "switch when the active link's loss exceeds this and a backup does better (the paper: 5%)"},
+     "switch when the active link's loss exceeds this and a backup is clearly better "
+     "(the paper: 5%)"},
+    {"switch_margin", MAVBOND_OPT_PERCENT, "5%",
+     "a loss switch goes only to a backup whose loss is lower by at least this many percentage "
+     "points, and by more than chance (3.09 standard errors), so links of similar loss do not "
+     "trade places on noise"},
     {"priority", MAVBOND_OPT_STRINGS, nullptr,
-     "link names in preference order (default: the bond's member order)"},
+     "endpoint names of the bonds in scope, in preference order (default: the bond's member "
+     "order); a learned peer (radio@10.0.0.2:14550) ranks as its endpoint"},
     {"hold_down", MAVBOND_OPT_DURATION, "2s",
      "no loss or failback switch within this time of the previous switch"},
-    {"failback_after", MAVBOND_OPT_DURATION, "0s",
-     "return to the most preferred link once healthy this long (0s: never)"},
+    {"failback_after", MAVBOND_OPT_DURATION, "30s",
+     "return to a more preferred link once it has been healthy this long; a link back from "
+     "silence is not a target of a loss switch before that either (0s: never fail back)"},
     {nullptr, MAVBOND_OPT_BOOL, nullptr, nullptr},
 };
+
+/// Time from `then` to `now`, 0 when `then` is later: a frame's arrival time may be a little
+/// after the loop's clock that a timer reads.
+uint64_t elapsed(uint64_t now, uint64_t then) { return now > then ? now - then : 0; }
 
 /// "5s", "500ms" or "1.25s": configured durations read back as the user wrote them.
 void format_duration(uint64_t ns, char* out, size_t len) {
@@ -67,37 +98,54 @@ void format_duration(uint64_t ns, char* out, size_t len) {
         snprintf(out, len, "%.2fs", static_cast<double>(ns) / 1e9);
 }
 
-/// Received and lost frames over the last loss_window, in buckets of loss_window / 10.
+/// A link's loss over the window: frames it should have brought, and those it did not.
+struct LossFigure {
+    int64_t expected = 0;
+    int64_t lost = 0;
+    double loss() const { return expected > 0 ? static_cast<double>(lost) / expected : 0.0; }
+};
+
+/// Received and lost frames over the last loss_window: ten buckets of loss_window / 10 and
+/// the current one, which fills as time goes, so the figure always covers the whole window
+/// (and at most a tenth more). Expiry is O(1) per frame.
 class LossWindow {
 public:
     void init(uint64_t window_ns) { width_ = std::max<uint64_t>(window_ns / kLossBuckets, 1); }
-    void add(uint64_t now, SeqStep s) {
-        roll(now);
-        size_t b = epoch_ % kLossBuckets;
-        received_[b] += s.received;
-        lost_[b] += s.lost;
+    void clear() {
+        received_.fill(0);
+        lost_.fill(0);
     }
-    /// Expected frames and the loss fraction over the window (lost may be negative in a bucket
-    /// when a late frame filled a gap counted in the previous one).
-    void totals(uint64_t now, int64_t& expected, double& loss) {
+    void add(uint64_t now, int64_t received, int64_t lost) {
+        roll(now);
+        size_t b = epoch_ % kRing;
+        received_[b] += received;
+        lost_[b] += lost;
+    }
+    /// Lost may be negative in a bucket when a late frame filled a gap counted before it (in
+    /// an older bucket or before the window was cleared): the sum never goes below zero.
+    LossFigure totals(uint64_t now) {
         roll(now);
         int64_t received = 0, lost = 0;
-        for (size_t i = 0; i < kLossBuckets; i++) {
+        for (size_t i = 0; i < kRing; i++) {
             received += received_[i];
             lost += lost_[i];
         }
-        expected = received + std::max<int64_t>(lost, 0);
-        loss = mavbond_plugins::loss_fraction(received, lost);
+        LossFigure f;
+        f.lost = std::max<int64_t>(lost, 0);
+        f.expected = received + f.lost;
+        return f;
     }
 
 private:
+    static constexpr size_t kRing = kLossBuckets + 1;
+
     void roll(uint64_t now) {
         uint64_t e = now / width_;
         if (e <= epoch_)
             return;
-        uint64_t n = std::min<uint64_t>(e - epoch_, kLossBuckets);
+        uint64_t n = std::min<uint64_t>(e - epoch_, kRing);
         for (uint64_t i = 1; i <= n; i++) {
-            size_t b = (epoch_ + i) % kLossBuckets;
+            size_t b = (epoch_ + i) % kRing;
             received_[b] = lost_[b] = 0;
         }
         epoch_ = e;
@@ -105,8 +153,104 @@ private:
 
     uint64_t width_ = kSecond;
     uint64_t epoch_ = 0;
-    std::array<int64_t, kLossBuckets> received_{}, lost_{};
+    std::array<int64_t, kRing> received_{}, lost_{};
 };
+
+/// Which sequence numbers a bond recently delivered, per source: the newest, and a bitmap of
+/// the 128 before it. A fixed open-addressed table, so a frame never allocates.
+///
+/// A copy is recognised while the link bringing it is less than 128 frames of its source and
+/// less than `horizon` behind the delivery of the original; a copy from further behind looks
+/// new and is delivered again (a duplicate, never a loss). The horizon (switch_after) also
+/// keeps the numbers apart after a silence switch: the new link's frames are then a second or
+/// more ahead, which modulo 256 may look like "just behind", and a source's history that old
+/// is forgotten instead.
+class DeliveredHistory {
+public:
+    enum class Seen { kNew, kDelivered, kUntracked };
+
+    /// Whether (sysid, compid, seq) was delivered; when not, records it as delivered now.
+    /// `restart`: the source's numbering restarted (the host saw it), its history is void.
+    Seen admit(uint8_t sysid, uint8_t compid, uint8_t seq, uint64_t now, uint64_t horizon,
+               bool restart) {
+        Source* s = find(sysid, compid);
+        if (!s)
+            return Seen::kUntracked;
+        if (!s->delivered_any || restart || elapsed(now, s->last_delivery_ns) >= horizon) {
+            s->delivered_any = true;
+            s->newest = seq;
+            s->behind = {0, 0};
+        } else {
+            auto ahead = static_cast<uint8_t>(seq - s->newest);
+            if (ahead == 0)
+                return Seen::kDelivered;
+            if (ahead < 128) {
+                shift(*s, ahead);
+                s->newest = seq;
+            } else {
+                // 1..128 behind the newest: bit (behind - 1).
+                unsigned bit = static_cast<uint8_t>(s->newest - seq) - 1u;
+                uint64_t& word = s->behind[bit / 64];
+                uint64_t mask = uint64_t{1} << (bit % 64);
+                if (word & mask)
+                    return Seen::kDelivered;
+                word |= mask;
+            }
+        }
+        s->last_delivery_ns = now;
+        return Seen::kNew;
+    }
+
+private:
+    struct Source {
+        uint16_t key = 0;
+        bool used = false;
+        bool delivered_any = false;
+        uint8_t newest = 0;
+        std::array<uint64_t, 2> behind{};  // bit i: newest - 1 - i was delivered
+        uint64_t last_delivery_ns = 0;
+    };
+
+    /// The newest moves `ahead` (1..127) forward; the old newest becomes bit ahead - 1.
+    static void shift(Source& s, unsigned ahead) {
+        uint64_t lo = s.behind[0], hi = s.behind[1];
+        if (ahead >= 64) {
+            hi = lo << (ahead - 64);
+            lo = 0;
+        } else {
+            hi = hi << ahead | lo >> (64 - ahead);
+            lo = lo << ahead;
+        }
+        unsigned bit = ahead - 1;
+        (bit < 64 ? lo : hi) |= uint64_t{1} << (bit % 64);
+        s.behind = {lo, hi};
+    }
+
+    Source* find(uint8_t sysid, uint8_t compid) {
+        auto key = static_cast<uint16_t>(sysid << 8 | compid);
+        uint32_t i = (key * 40503u >> 4) % kHistorySources;
+        for (uint32_t n = 0; n < kHistorySources; n++, i = (i + 1) % kHistorySources) {
+            Source& s = sources_[i];
+            if (s.used && s.key == key)
+                return &s;
+            if (!s.used) {
+                if (used_ * 4 >= kHistorySources * 3)  // keeps probe runs short
+                    return nullptr;
+                s.used = true;
+                s.key = key;
+                used_++;
+                return &s;
+            }
+        }
+        return nullptr;
+    }
+
+    std::array<Source, kHistorySources> sources_{};
+    uint32_t used_ = 0;
+};
+
+enum Reason : size_t { kSilence, kLoss, kFailback, kRemoved, kReasons };
+constexpr const char* kReasonNames[kReasons] = {"silence", "loss", "failback", "removed"};
 
 struct Link {
     bool present = false;
@@ -115,12 +259,15 @@ struct Link {
     uint32_t member_order = 0;  // the host's position among the bond's members
     bool heard = false;
     uint64_t last_heard_ns = 0;  // creation time until heard, so silence counts from start
+    uint64_t heard_since_ns = 0;  // heard without a silence since (its loss window's start)
+    bool on_probation = false;    // back from silence, not yet healthy for failback_after
     bool healthy = false;
     uint64_t healthy_since_ns = 0;
-    SourceTable sources;
+    bool thin_window_logged = false;
     LossWindow window;
     uint64_t passed = 0;
     uint64_t dropped = 0;
+    uint64_t already_delivered = 0;
 };
 
 struct Bond {
@@ -129,9 +276,12 @@ struct Bond {
     std::vector<uint32_t> members;  // link ids, most preferred first
     uint32_t active = kNone;        // link id
     uint64_t switches = 0;
+    std::array<uint64_t, kReasons> switches_by{};
     bool switched = false;
     uint64_t last_switch_ns = 0;
     bool stranded = false;  // the active link is silent and no other is heard (logged once)
+    DeliveredHistory delivered;
+    uint64_t untracked = 0;  // frames passed unchecked: more sources than the history holds
 };
 
 class LinkSwitch {
@@ -152,16 +302,23 @@ public:
     int tick();
 
 private:
+    int check_priority(const mavbond_config* cfg, char* err, size_t err_len);
     Link* link_for(const mavbond_link* l);
     void adopt(const mavbond_link* l);
     void order_members(Bond& b);
     void evaluate(Bond& b, uint64_t now);
     void update_health(Link& l, uint64_t now);
     bool alive(const Link& l, uint64_t now) const {
-        return l.present && l.heard && now - l.last_heard_ns < switch_after_;
+        return l.present && l.heard && elapsed(now, l.last_heard_ns) < switch_after_;
     }
-    uint32_t pick_backup(const Bond& b, uint64_t now, double worse_than);
-    void make_active(Bond& b, uint32_t link_id, const char* reason);
+    bool judged(const Link& l, const LossFigure& f, uint64_t now) const {
+        return alive(l, now) && elapsed(now, l.heard_since_ns) >= loss_window_ &&
+               f.expected >= kMinExpected;
+    }
+    bool clearly_better(const LossFigure& active, const LossFigure& backup) const;
+    uint32_t pick_alive(const Bond& b, uint64_t now, uint64_t heard_within);
+    uint32_t pick_better(const Bond& b, uint64_t now, const LossFigure& active);
+    void make_active(Bond& b, uint32_t link_id, Reason reason, const char* why);
     uint32_t rank_of(const char* name) const;
 
     const mavbond_host_api* api_;
@@ -169,11 +326,11 @@ private:
     uint64_t switch_after_ = kSecond;
     uint64_t loss_window_ = 5 * kSecond;
     double max_loss_ = 0.05;
+    double switch_margin_ = 0.05;
     uint64_t hold_down_ = 2 * kSecond;
-    uint64_t failback_after_ = 0;
+    uint64_t failback_after_ = 30 * kSecond;
     std::vector<std::string> priority_;
     std::vector<std::string> scope_bonds_;  // empty: every bond
-    uint64_t created_ns_ = 0;
     std::vector<Link> links_;              // by link id
     std::vector<Bond> bonds_;
     std::vector<uint32_t> bond_index_;     // bond id -> index into bonds_ (kNone: out of scope)
@@ -185,6 +342,7 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
     api_->cfg_duration_ns(cfg, "switch_after", &switch_after_);
     api_->cfg_duration_ns(cfg, "loss_window", &loss_window_);
     api_->cfg_percent(cfg, "max_loss", &max_loss_);
+    api_->cfg_percent(cfg, "switch_margin", &switch_margin_);
     api_->cfg_duration_ns(cfg, "hold_down", &hold_down_);
     api_->cfg_duration_ns(cfg, "failback_after", &failback_after_);
     if (switch_after_ == 0) {
@@ -205,30 +363,18 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
     size_t bond_count = 0, endpoint_count = 0;
     api_->scope(cfg, &bonds, &bond_count, &endpoints, &endpoint_count);
     scope_bonds_.assign(bonds, bonds + bond_count);
+    if (check_priority(cfg, err, err_len) != 0)
+        return -1;
 
-    created_ns_ = api_->now_ns(h_);
     size_t n = api_->links(h_, nullptr, 0);
     std::vector<const mavbond_link*> all(n);
     n = std::min(n, api_->links(h_, all.data(), all.size()));
     for (size_t i = 0; i < n; i++)
         adopt(all[i]);
-
-    // The names cannot be checked against the links here: the daemon creates filters before
-    // its endpoints, and learned peers appear later still. A repeat is certainly a mistake.
-    for (size_t i = 0; i < priority_.size(); i++) {
-        bool repeated = std::find(priority_.begin(), priority_.begin() + i, priority_[i]) !=
-                        priority_.begin() + i;
-        if (priority_[i].empty() || repeated) {
-            std::string msg = priority_[i].empty() ? "empty link name"
-                                                   : "'" + priority_[i] + "' is listed twice";
-            api_->cfg_error(cfg, "priority", msg.c_str(), err, err_len);
-            return -1;
-        }
-    }
     for (Bond& b : bonds_) {
         order_members(b);
         if (!b.members.empty())
-            make_active(b, b.members.front(), nullptr);
+            make_active(b, b.members.front(), kReasons, nullptr);
     }
 
     uint64_t tick = std::clamp(switch_after_ / 10, kMinTick, kMaxTick);
@@ -240,6 +386,55 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
         return -1;
     }
     timer_ = true;
+    return 0;
+}
+
+/// `priority` names endpoints of the bonds in scope, each once. Checked against the config
+/// (the links do not exist yet when filters are created). Without a `bonds:` scope the
+/// plugin cannot list the config's bonds (ABI 3 has no call for it), so only repeats are
+/// caught then.
+int LinkSwitch::check_priority(const mavbond_config* cfg, char* err, size_t err_len) {
+    for (size_t i = 0; i < priority_.size(); i++) {
+        bool repeated = std::find(priority_.begin(), priority_.begin() + i, priority_[i]) !=
+                        priority_.begin() + i;
+        if (priority_[i].empty() || repeated) {
+            std::string msg = priority_[i].empty() ? "empty link name"
+                                                   : "'" + priority_[i] + "' is listed twice";
+            api_->cfg_error(cfg, "priority", msg.c_str(), err, err_len);
+            return -1;
+        }
+    }
+    // The bonds the names may come from: those in scope, else every bond of the config.
+    std::vector<std::string> bonds = scope_bonds_;
+    if (bonds.empty()) {
+        const char* const* all = nullptr;
+        size_t n = 0;
+        api_->cfg_bonds(cfg, &all, &n);
+        bonds.assign(all, all + n);
+    }
+    std::string known;  // for the message: every endpoint the names may be
+    std::vector<std::string> members;
+    for (const std::string& bond : bonds) {
+        const char* const* names = nullptr;
+        size_t count = 0;
+        if (api_->cfg_bond_members(cfg, bond.c_str(), &names, &count) != 0)
+            continue;  // the host checks `bonds:` itself
+        for (size_t i = 0; i < count; i++) {
+            members.emplace_back(names[i]);
+            known += (known.empty() ? "" : ", ") + members.back();
+        }
+    }
+    for (size_t i = 0; i < priority_.size(); i++) {
+        if (std::find(members.begin(), members.end(), priority_[i]) != members.end())
+            continue;
+        std::string msg = "'" + priority_[i] + "' is not an endpoint of bond" +
+                          (bonds.size() > 1 ? "s " : " ");
+        for (size_t j = 0; j < bonds.size(); j++)
+            msg += (j ? ", " : "") + bonds[j];
+        msg += known.empty() ? " (it has none)" : " (" + known + ")";
+        api_->cfg_item_error(cfg, "priority", i, msg.c_str(), err, err_len);
+        return -1;
+    }
     return 0;
 }
 
@@ -311,16 +506,21 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
                                        const mavbond_link* from) {
     Link* l = link_for(from);
     uint64_t now = f->rx_time_ns ? f->rx_time_ns : api_->now_ns(h_);
-    // A link back from silence: the sequence jump over the outage says nothing (modulo 256 it
-    // is anything from 0 to 127 frames) and the outage already counted as silence, so loss is
-    // measured afresh from here rather than charging a random figure to the returning link.
-    if (l->heard && now - l->last_heard_ns >= switch_after_)
-        l->sources.clear();
+    // Heard for the first time, or back from silence: its loss window starts afresh here.
+    // The host's figure for the first frame back is the sequence jump over the outage (modulo
+    // 256 anything from 0 to 127 frames), which says nothing: the outage counted as silence.
+    bool back = l->heard && elapsed(now, l->last_heard_ns) >= switch_after_;
+    if (!l->heard || back) {
+        l->heard_since_ns = now;
+        l->window.clear();
+        l->on_probation = back;
+    }
     // Every frame that arrived proves the link alive and feeds its loss figure, even one an
     // earlier filter dropped (a duplicate from a backup is still a sign of a working backup).
     l->heard = true;
-    l->last_heard_ns = now;
-    l->window.add(now, l->sources.step(f->sysid, f->compid, f->seq));
+    l->last_heard_ns = std::max(l->last_heard_ns, now);
+    bool repeat = f->stream_flags & MAVBOND_STREAM_REPEAT;
+    l->window.add(now, repeat ? 0 : 1, back ? 0 : f->stream_lost);
     if (l->bond == kNone)
         return MAVBOND_PASS;
     if (notes && (notes->flags & MAVBOND_NOTE_DROPPED))
@@ -328,14 +528,25 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
     Bond& b = bonds_[l->bond];
     if (b.active == kNone) {
         order_members(b);
-        make_active(b, b.members.front(), nullptr);
+        make_active(b, b.members.front(), kReasons, nullptr);
     }
-    if (from->id == b.active) {
-        l->passed++;
-        return MAVBOND_PASS;
+    if (from->id != b.active) {
+        l->dropped++;
+        return MAVBOND_DROP;
     }
-    l->dropped++;
-    return MAVBOND_DROP;
+    bool restart = f->stream_flags & MAVBOND_STREAM_RESYNC;
+    switch (b.delivered.admit(f->sysid, f->compid, f->seq, now, switch_after_, restart)) {
+    case DeliveredHistory::Seen::kDelivered:
+        l->already_delivered++;
+        return MAVBOND_DROP;
+    case DeliveredHistory::Seen::kUntracked:
+        b.untracked++;
+        break;
+    case DeliveredHistory::Seen::kNew:
+        break;
+    }
+    l->passed++;
+    return MAVBOND_PASS;
 }
 
 void LinkSwitch::on_link(const mavbond_link* link, mavbond_link_event event) {
@@ -349,7 +560,7 @@ void LinkSwitch::on_link(const mavbond_link* link, mavbond_link_event event) {
             // appear one by one as the daemon starts (or as peers first send), and the order
             // they happen to appear in is not a preference.
             if (b.active == kNone || (!b.switched && b.active != b.members.front()))
-                make_active(b, b.members.front(), nullptr);
+                make_active(b, b.members.front(), kReasons, nullptr);
         }
         return;
     }
@@ -363,14 +574,13 @@ void LinkSwitch::on_link(const mavbond_link* link, mavbond_link_event event) {
     b.members.erase(std::remove(b.members.begin(), b.members.end(), link->id), b.members.end());
     if (b.active != link->id)
         return;
-    uint64_t now = api_->now_ns(h_);
-    uint32_t next = pick_backup(b, now, 2.0);
+    uint32_t next = pick_alive(b, api_->now_ns(h_), switch_after_);
     if (next == kNone && !b.members.empty())
         next = b.members.front();
-    char reason[160];
-    snprintf(reason, sizeof reason, "%s was removed", l.name.c_str());
+    char why[160];
+    snprintf(why, sizeof why, "%s was removed", l.name.c_str());
     if (next != kNone)
-        make_active(b, next, reason);
+        make_active(b, next, kRemoved, why);
     else
         b.active = kNone;
 }
@@ -382,36 +592,83 @@ int LinkSwitch::tick() {
     return 1;
 }
 
-/// Healthy: heard within switch_after and loss at most max_loss (or too few frames to tell).
+/// Healthy: alive and its loss, where judged, at most max_loss. A link back from silence
+/// leaves probation once healthy for failback_after.
 void LinkSwitch::update_health(Link& l, uint64_t now) {
-    int64_t expected = 0;
-    double loss = 0;
-    l.window.totals(now, expected, loss);
-    bool healthy = alive(l, now) && (expected < kMinExpected || loss <= max_loss_);
+    LossFigure f = l.window.totals(now);
+    bool is_judged = judged(l, f, now);
+    bool healthy = alive(l, now) && (!is_judged || f.loss() <= max_loss_);
     if (healthy && !l.healthy)
         l.healthy_since_ns = now;
     l.healthy = healthy;
+    if (l.on_probation && healthy && is_judged &&
+        elapsed(now, l.healthy_since_ns) >= failback_after_)
+        l.on_probation = false;
+    // A full window with too few frames to judge: say so once, or "max_loss never acts"
+    // would be a mystery on a slow link.
+    if (alive(l, now) && elapsed(now, l.heard_since_ns) >= loss_window_ &&
+        f.expected < kMinExpected && !l.thin_window_logged) {
+        char window[32], line[256];
+        format_duration(loss_window_, window, sizeof window);
+        snprintf(line, sizeof line,
+                 "link %s: %lld frames expected over %s, fewer than the %lld needed to judge its "
+                 "loss: no loss switch from or to it until it carries more (or loss_window is "
+                 "longer)",
+                 l.name.c_str(), static_cast<long long>(f.expected), window,
+                 static_cast<long long>(kMinExpected));
+        api_->log(h_, MAVBOND_LOG_INFO, line);
+        l.thin_window_logged = true;
+    }
 }
 
-/// The best alive member other than the active one whose loss is below `worse_than`:
-/// the most preferred within max_loss (or not yet measurable), else the least lossy.
-uint32_t LinkSwitch::pick_backup(const Bond& b, uint64_t now, double worse_than) {
+/// The backup's loss is lower than the active link's by at least switch_margin, and by more
+/// than chance: a pooled two-proportion z-test, z >= kBetterZ. Both figures are judged.
+bool LinkSwitch::clearly_better(const LossFigure& active, const LossFigure& backup) const {
+    double d = active.loss() - backup.loss();
+    if (d <= 0 || d < switch_margin_)
+        return false;
+    double n_a = static_cast<double>(active.expected), n_b = static_cast<double>(backup.expected);
+    double pooled = static_cast<double>(active.lost + backup.lost) / (n_a + n_b);
+    double variance = pooled * (1 - pooled) * (1 / n_a + 1 / n_b);
+    return d * d >= kBetterZ * kBetterZ * variance;
+}
+
+/// For a silence or removal: a member heard within `heard_within` other than the active one,
+/// the most preferred whose loss is not judged above max_loss, else the least lossy.
+uint32_t LinkSwitch::pick_alive(const Bond& b, uint64_t now, uint64_t heard_within) {
     uint32_t least_lossy = kNone;
-    double least = worse_than;
+    double least = 2.0;
     for (uint32_t id : b.members) {
         Link& l = links_[id];
-        if (id == b.active || !alive(l, now))
+        if (id == b.active || !alive(l, now) || elapsed(now, l.last_heard_ns) >= heard_within)
             continue;
-        int64_t expected = 0;
-        double loss = 0;
-        l.window.totals(now, expected, loss);
-        bool measured = expected >= kMinExpected;
-        if (worse_than <= 1.0 && !measured)
-            continue;  // judging loss: a backup must show it does better, not just exist
-        if ((!measured || loss <= max_loss_) && loss < worse_than)
+        LossFigure f = l.window.totals(now);
+        if (!judged(l, f, now) || f.loss() <= max_loss_)
             return id;
-        if (loss < least) {
-            least = loss;
+        if (f.loss() < least) {
+            least = f.loss();
+            least_lossy = id;
+        }
+    }
+    return least_lossy;
+}
+
+/// For a loss switch: a judged member, not on probation, clearly better than the active link;
+/// the most preferred within max_loss, else the least lossy.
+uint32_t LinkSwitch::pick_better(const Bond& b, uint64_t now, const LossFigure& active) {
+    uint32_t least_lossy = kNone;
+    double least = 2.0;
+    for (uint32_t id : b.members) {
+        Link& l = links_[id];
+        if (id == b.active || l.on_probation)
+            continue;
+        LossFigure f = l.window.totals(now);
+        if (!judged(l, f, now) || !clearly_better(active, f))
+            continue;
+        if (f.loss() <= max_loss_)
+            return id;
+        if (f.loss() < least) {
+            least = f.loss();
             least_lossy = id;
         }
     }
@@ -423,48 +680,49 @@ void LinkSwitch::evaluate(Bond& b, uint64_t now) {
         update_health(links_[id], now);
     if (b.active == kNone) {
         if (!b.members.empty())
-            make_active(b, b.members.front(), nullptr);
+            make_active(b, b.members.front(), kReasons, nullptr);
         return;
     }
     Link& active = links_[b.active];
-    char reason[200];
+    char why[200];
 
     // 1. Silence: the paper's rule, allowed even inside hold_down (a dead link is worse than a
-    // flapping one).
-    uint64_t silent = now - active.last_heard_ns;
+    // flapping one). The backup must be heard now (within switch_after / 2), not merely less
+    // long ago: when the vehicle stops sending, every link falls silent within their latency
+    // difference of each other, and there is nothing to switch to.
+    uint64_t silent = elapsed(now, active.last_heard_ns);
     if (silent >= switch_after_) {
-        uint32_t next = pick_backup(b, now, 2.0);  // any alive link beats a silent one
+        uint32_t next = pick_alive(b, now, switch_after_ / 2);
         if (next == kNone) {
             if (!b.stranded) {
-                snprintf(reason, sizeof reason,
+                snprintf(why, sizeof why,
                          "active link %s silent for %.2fs and no other link of bond %s is heard",
                          active.name.c_str(), static_cast<double>(silent) / 1e9, b.name.c_str());
-                api_->log(h_, MAVBOND_LOG_WARNING, reason);
+                api_->log(h_, MAVBOND_LOG_WARNING, why);
                 b.stranded = true;
             }
             return;
         }
-        snprintf(reason, sizeof reason, "%s %s for %.2fs", active.name.c_str(),
+        snprintf(why, sizeof why, "%s %s for %.2fs", active.name.c_str(),
                  active.heard ? "silent" : "not heard", static_cast<double>(silent) / 1e9);
-        make_active(b, next, reason);
+        make_active(b, next, kSilence, why);
         return;
     }
     b.stranded = false;
-    if (b.switched && now - b.last_switch_ns < hold_down_)
+    if (b.switched && elapsed(now, b.last_switch_ns) < hold_down_)
         return;
 
-    // 2. Loss over the window, only towards a backup that measurably does better.
-    int64_t expected = 0;
-    double loss = 0;
-    active.window.totals(now, expected, loss);
-    if (expected >= kMinExpected && loss > max_loss_) {
-        uint32_t next = pick_backup(b, now, loss);
+    // 2. Loss over a judged window, only towards a backup that is clearly better.
+    LossFigure fa = active.window.totals(now);
+    if (judged(active, fa, now) && fa.loss() > max_loss_) {
+        uint32_t next = pick_better(b, now, fa);
         if (next != kNone) {
             char window[32];
             format_duration(loss_window_, window, sizeof window);
-            snprintf(reason, sizeof reason, "loss %.1f%% over %s > %g%%", loss * 100, window,
-                     max_loss_ * 100);
-            make_active(b, next, reason);
+            LossFigure fn = links_[next].window.totals(now);
+            snprintf(why, sizeof why, "loss %.1f%% over %s > %g%%, %s %.1f%%", fa.loss() * 100,
+                     window, max_loss_ * 100, links_[next].name.c_str(), fn.loss() * 100);
+            make_active(b, next, kLoss, why);
             return;
         }
     }
@@ -476,19 +734,19 @@ void LinkSwitch::evaluate(Bond& b, uint64_t now) {
         if (id == b.active)
             break;
         Link& l = links_[id];
-        if (l.healthy && now - l.healthy_since_ns >= failback_after_) {
+        if (l.healthy && judged(l, l.window.totals(now), now) &&
+            elapsed(now, l.healthy_since_ns) >= failback_after_) {
             char after[32];
             format_duration(failback_after_, after, sizeof after);
-            snprintf(reason, sizeof reason, "failback to %s after %s healthy", l.name.c_str(),
-                     after);
-            make_active(b, id, reason);
+            snprintf(why, sizeof why, "failback to %s after %s healthy", l.name.c_str(), after);
+            make_active(b, id, kFailback, why);
             return;
         }
     }
 }
 
-/// Switches the bond's active link; reason nullptr marks the initial choice (not a switch).
-void LinkSwitch::make_active(Bond& b, uint32_t link_id, const char* reason) {
+/// Switches the bond's active link; `why` nullptr marks the initial choice (not a switch).
+void LinkSwitch::make_active(Bond& b, uint32_t link_id, Reason reason, const char* why) {
     uint32_t previous = b.active;
     b.active = link_id;
     int rc = api_->set_active_link(h_, b.id, link_id);
@@ -498,17 +756,19 @@ void LinkSwitch::make_active(Bond& b, uint32_t link_id, const char* reason) {
                  b.name.c_str(), links_[link_id].name.c_str(), strerror(-rc));
         api_->log(h_, MAVBOND_LOG_WARNING, line);
     }
-    if (!reason || previous == kNone || previous == link_id) {
+    if (!why || previous == kNone || previous == link_id) {
         snprintf(line, sizeof line, "bond %s: active link %s", b.name.c_str(),
                  links_[link_id].name.c_str());
         api_->log(h_, MAVBOND_LOG_INFO, line);
         return;
     }
     b.switches++;
+    if (reason < kReasons)
+        b.switches_by[reason]++;
     b.switched = true;
     b.last_switch_ns = api_->now_ns(h_);
     snprintf(line, sizeof line, "active link %s -> %s: %s", links_[previous].name.c_str(),
-             links_[link_id].name.c_str(), reason);
+             links_[link_id].name.c_str(), why);
     api_->log(h_, MAVBOND_LOG_NOTICE, line);
 }
 
@@ -522,24 +782,32 @@ size_t LinkSwitch::status_json(char* buf, size_t len) {
         out.str(b.name.c_str());
         out.raw(",\"active\":");
         out.str(b.active == kNone ? "" : links_[b.active].name.c_str());  // as the host does
-        out.raw(",\"switches\":%llu,\"links\":[", static_cast<unsigned long long>(b.switches));
+        out.raw(",\"switches\":%llu,\"switches_by_reason\":{",
+                static_cast<unsigned long long>(b.switches));
+        for (size_t r = 0; r < kReasons; r++)
+            out.raw("%s\"%s\":%llu", r ? "," : "", kReasonNames[r],
+                    static_cast<unsigned long long>(b.switches_by[r]));
+        out.raw("},\"untracked_frames\":%llu,\"links\":[",
+                static_cast<unsigned long long>(b.untracked));
         for (size_t j = 0; j < b.members.size(); j++) {
             Link& l = links_[b.members[j]];
-            int64_t expected = 0;
-            double loss = 0;
-            l.window.totals(now, expected, loss);
+            LossFigure f = l.window.totals(now);
             out.raw("%s{\"name\":", j ? "," : "");
             out.str(l.name.c_str());
-            out.raw(",\"heard\":%s,\"silent_ms\":%llu,\"alive\":%s,\"loss_pct\":",
+            out.raw(",\"heard\":%s,\"silent_ms\":%llu,\"alive\":%s,\"expected_frames\":%lld,"
+                    "\"loss_pct\":",
                     l.heard ? "true" : "false",
-                    static_cast<unsigned long long>((now - l.last_heard_ns) / kMs),
-                    alive(l, now) ? "true" : "false");
-            if (expected >= kMinExpected)
-                out.num(loss * 100, 2);
+                    static_cast<unsigned long long>(elapsed(now, l.last_heard_ns) / kMs),
+                    alive(l, now) ? "true" : "false", static_cast<long long>(f.expected));
+            if (judged(l, f, now))
+                out.num(f.loss() * 100, 2);
             else
-                out.raw("null");  // too few frames in the window to tell
-            out.raw(",\"passed\":%llu,\"dropped\":%llu}", static_cast<unsigned long long>(l.passed),
-                    static_cast<unsigned long long>(l.dropped));
+                out.raw("null");  // not heard for a whole window, or too few frames in it
+            out.raw(",\"probation\":%s,\"passed\":%llu,\"dropped\":%llu,"
+                    "\"already_delivered\":%llu}",
+                    l.on_probation ? "true" : "false", static_cast<unsigned long long>(l.passed),
+                    static_cast<unsigned long long>(l.dropped),
+                    static_cast<unsigned long long>(l.already_delivered));
         }
         out.raw("]}");
     }
@@ -552,6 +820,15 @@ void LinkSwitch::metrics(mavbond::MetricOut& out) {
     for (Bond& b : bonds_) {
         out.counter("switches", "Changes of a bond's active link.", b.switches,
                     {{"bond", b.name.c_str()}});
+        for (size_t r = 0; r < kReasons; r++)
+            out.counter("switches_by_reason",
+                        "Changes of a bond's active link by reason: silence, loss, failback, "
+                        "removed.",
+                        b.switches_by[r], {{"bond", b.name.c_str()}, {"reason", kReasonNames[r]}});
+        out.counter("untracked_frames",
+                    "Frames passed without checking for a copy already delivered (more sources "
+                    "than linkswitch remembers).",
+                    b.untracked, {{"bond", b.name.c_str()}});
         for (uint32_t id : b.members) {
             Link& l = links_[id];
             std::initializer_list<mavbond_label> labels = {{"bond", b.name.c_str()},
@@ -560,23 +837,27 @@ void LinkSwitch::metrics(mavbond::MetricOut& out) {
                       id == b.active ? 1 : 0, labels);
             out.gauge("alive", "1 while a link is heard (within switch_after).",
                       alive(l, now) ? 1 : 0, labels);
-            int64_t expected = 0;
-            double loss = 0;
-            l.window.totals(now, expected, loss);
+            LossFigure f = l.window.totals(now);
             out.gauge("loss_ratio",
-                      "A link's loss over loss_window (0..1); NaN: too few frames to tell.",
-                      expected >= kMinExpected ? loss : std::numeric_limits<double>::quiet_NaN(),
+                      "A link's loss over loss_window (0..1); NaN until judged (heard for a "
+                      "whole window holding at least 100 expected frames).",
+                      judged(l, f, now) ? f.loss() : std::numeric_limits<double>::quiet_NaN(),
                       labels);
             out.counter("passed_frames", "Frames of a link that linkswitch let through.",
                         l.passed, labels);
             out.counter("dropped_frames", "Frames of a link that linkswitch dropped (not active).",
                         l.dropped, labels);
+            out.counter("already_delivered_frames",
+                        "Frames of the active link dropped because the bond already delivered "
+                        "their sequence number (copies the previous active link delivered "
+                        "before a switch).",
+                        l.already_delivered, labels);
         }
     }
 }
 
 }  // namespace
 
-MAVBOND_FILTER_PLUGIN(LinkSwitch, "linkswitch", "0.1.0",
+MAVBOND_FILTER_PLUGIN(LinkSwitch, "linkswitch", "0.2.0",
                       "active-backup: only the active link of a bond passes; switch on silence or loss",
                       kOptions)

@@ -139,6 +139,8 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
         for (const auto& n : names)
             ptrs.push_back(n.c_str());
     }
+    for (const auto& b : config.bonds)
+        cfg->bond_names_.push_back(cfg->members_.find(b.name)->first.c_str());
     return cfg;
 }
 
@@ -264,6 +266,11 @@ struct HostApiImpl {
         *count = members->size();
         return 0;
     }
+    static void cfg_bonds(const mavbond_config* c, const char* const** names, size_t* count) {
+        const auto& bonds = c->config->bond_names();
+        *names = bonds.data();
+        *count = bonds.size();
+    }
     static void cfg_item_error(const mavbond_config* c, const char* key, size_t index,
                                const char* message, char* err, size_t err_len) {
         if (!err || err_len == 0)
@@ -282,7 +289,8 @@ const mavbond_host_api* host_api() {
         HostApiImpl::bond_state,   HostApiImpl::cfg_bool,
         HostApiImpl::cfg_int,      HostApiImpl::cfg_duration_ns, HostApiImpl::cfg_percent,
         HostApiImpl::cfg_string,   HostApiImpl::cfg_strings,   HostApiImpl::cfg_error,
-        HostApiImpl::scope,        HostApiImpl::cfg_bond_members, HostApiImpl::cfg_item_error,
+        HostApiImpl::scope,        HostApiImpl::cfg_bond_members, HostApiImpl::cfg_bonds,
+        HostApiImpl::cfg_item_error,
     };
     return &api;
 }

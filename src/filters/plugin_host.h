@@ -62,6 +62,8 @@ public:
     std::string item_error_at(const char* key, size_t index, const std::string& message) const;
     /// The endpoints of a bond, in config order; nullptr when the config has no such bond.
     const std::vector<const char*>* bond_members(const char* bond) const;
+    /// Every bond the config declares, in config order.
+    const std::vector<const char*>& bond_names() const { return bond_names_; }
     /// Whether the plugin refused an option through cfg_error (its message names the place).
     bool option_refused() const { return option_refused_; }
 
@@ -72,6 +74,7 @@ private:
     std::vector<const char*> bond_ptrs_, endpoint_ptrs_;
     std::map<std::string, std::vector<std::string>, std::less<>> members_;  // bond -> endpoints
     std::map<std::string, std::vector<const char*>, std::less<>> member_ptrs_;
+    std::vector<const char*> bond_names_;  // into members_' keys
     mutable bool option_refused_ = false;  // set through the const view plugins get
     friend struct HostApiImpl;
 };

@@ -349,6 +349,15 @@ CASES = [
      ["option 'priority'", "'r' is listed twice"]),
     ("linkswitch-priority-scalar", with_filter(f"{{plugin: linkswitch, priority: {HERE}r}}"),
      ["option 'priority' must be a list of strings"]),
+    ("linkswitch-switch_margin-word",
+     with_filter(f"{{plugin: linkswitch, switch_margin: {HERE}five}}"),
+     ["option 'switch_margin' must be a percentage"]),
+    ("linkswitch-priority-unknown",
+     with_filter(f"{{plugin: linkswitch, bonds: [v], priority: [r, {HERE}x]}}"),
+     ["option 'priority': 'x' is not an endpoint of bond v (r, l)"]),
+    ("linkswitch-priority-unknown-unscoped",
+     with_filter(f"{{plugin: linkswitch, priority: [{HERE}radoi, l]}}"),
+     ["option 'priority': 'radoi' is not an endpoint of bond v (r, l)"]),
     ("linkswitch-hold_down-word", with_filter(f"{{plugin: linkswitch, hold_down: {HERE}long}}"),
      ["option 'hold_down' must be a duration"]),
     ("linkswitch-failback_after-list",
@@ -394,8 +403,8 @@ KNOWN_KEYS = {
 }
 KNOWN_OPTIONS = {
     "dedup": {"window", "hash", "key", "drop_stale", "stale_after", "max_entries"},
-    "linkswitch": {"switch_after", "loss_window", "max_loss", "priority", "hold_down",
-                   "failback_after"},
+    "linkswitch": {"switch_after", "loss_window", "max_loss", "switch_margin", "priority",
+                   "hold_down", "failback_after"},
     "stats": {"interval", "csv", "log"},
 }
 # Errors of a key tested in another file, as (file, test function): counted as covered when

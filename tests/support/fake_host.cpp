@@ -43,6 +43,12 @@ const mavbond_link& FakeHost::add_link(const std::string& name, const std::strin
     return links_.back()->link;
 }
 
+void FakeHost::declare_endpoint(const std::string& name, const std::string& bond) {
+    declared_.emplace_back(name, bond);
+    if (std::find(bonds_.begin(), bonds_.end(), bond) == bonds_.end())
+        bonds_.push_back(bond);
+}
+
 const mavbond_link& FakeHost::link(const std::string& name) const {
     for (const auto& l : links_) {
         if (l->name == name)
@@ -62,7 +68,10 @@ void* FakeHost::create(const mavbond_plugin_descriptor* plugin, const std::strin
             yaml << ", bond: " << links_[i]->bond;
         yaml << "}\n";
     }
-    if (links_.empty())
+    for (size_t i = 0; i < declared_.size(); i++)
+        yaml << "  - {name: " << declared_[i].first << ", type: udp, mode: server, address: "
+             << "127.0.0.1:" << 8000 + i << ", bond: " << declared_[i].second << "}\n";
+    if (links_.empty() && declared_.empty())
         yaml << "  - {name: none, type: udp, mode: client, address: 127.0.0.1:9}\n";
     if (!bonds_.empty()) {
         yaml << "bonds:\n";

@@ -22,6 +22,9 @@ public:
 
     /// Declares a link (an endpoint), optionally a member of `bond`. Call before create().
     const mavbond_link& add_link(const std::string& name, const std::string& bond = "");
+    /// Declares an endpoint of the config with no link yet (a UDP server whose peers, the
+    /// links, come later as "NAME@address"). Call before create().
+    void declare_endpoint(const std::string& name, const std::string& bond);
     /// Builds an instance of `plugin` with `options` (YAML lines of the filter entry, e.g.
     /// "window: 500ms\nkey: content"). Returns the instance; on failure returns nullptr
     /// and stores the message in last_error().
@@ -72,6 +75,7 @@ private:
     std::vector<std::unique_ptr<LinkSlot>> links_;
     std::map<uint32_t, StreamPositions> positions_;  // by link id
     std::vector<std::string> bonds_;
+    std::vector<std::pair<std::string, std::string>> declared_;  // config-only endpoints
     const mavbond_plugin_descriptor* plugin_ = nullptr;
     void* self_ = nullptr;
     std::unique_ptr<Config> config_;
