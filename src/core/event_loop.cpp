@@ -225,6 +225,11 @@ bool EventLoop::run_once(Duration max_wait) {
     }
     now_ = Clock::now();
     round_++;
+    // A full event array may have left ready fds out: their data waits for the next round,
+    // which must come at once.
+    all_reported_ = n < static_cast<int>(events.size());
+    if (!all_reported_)
+        prompt_round_ = true;
     for (int i = 0; i < n; i++)
         static_cast<WatchRecord*>(events[i].data.ptr)->ready_round = round_;
     for (int i = 0; i < n; i++) {
@@ -232,10 +237,6 @@ bool EventLoop::run_once(Duration max_wait) {
         if (!record->dead)
             record->handler(events[i].events);
     }
-    // A full event array may have left ready fds out: their data waits for the next round,
-    // which must come at once.
-    if (n == static_cast<int>(events.size()))
-        prompt_round_ = true;
     for (auto& hook : after_io_hooks_)
         hook();
     run_due_timers();

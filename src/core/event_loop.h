@@ -106,6 +106,8 @@ public:
     TimePoint polled_after() const { return polled_after_; }
     /// The number of this round.
     uint64_t round() const { return round_; }
+    /// Whether epoll reported every ready fd in this round (its event array was not full).
+    bool all_reported() const { return all_reported_; }
 
 private:
     struct WatchRecord {
@@ -144,6 +146,7 @@ private:
     std::vector<std::function<void()>> deferred_;
     TimePoint now_ = Clock::now();
     TimePoint polled_after_ = now_;
+    bool all_reported_ = true;
     bool exit_requested_ = false;
     int exit_code_ = 0;
 };

@@ -213,11 +213,11 @@ void Router::deliver_to_recorders(const Endpoint& from, const Frame& frame, Time
     }
 }
 
-bool Router::ArrivalQueue::must_wait(TimePoint t, TimePoint polled) const {
+bool Router::ArrivalQueue::must_wait(TimePoint t, TimePoint polled, bool all_reported) const {
     if (!frames.empty())
         return true;  // after the ones already waiting
     for (const Input* in : inputs) {
-        if (in->read_to(polled) < t)
+        if (in->read_to(polled, all_reported) < t)
             return true;
     }
     return false;
@@ -234,7 +234,7 @@ void Router::polled_no_earlier_than(TimePoint t) {
 
 void Router::handle_frame(Endpoint& from, const Frame& frame, TimePoint arrival) {
     uint32_t bond = bond_of_[from.id()];
-    if (bond != kNoBond && queues_[bond].must_wait(arrival, polled()))
+    if (bond != kNoBond && queues_[bond].must_wait(arrival, polled(), loop_.all_reported()))
         wait_aside(queues_[bond], from, frame, arrival);
     else
         route(from, frame, arrival);
@@ -257,7 +257,7 @@ void Router::merge_round() {
         // Every frame up to the time each input is known to be read to.
         q.held_until = TimePoint::max();
         for (const Input* in : q.inputs)
-            q.held_until = std::min(q.held_until, in->read_to(polled()));
+            q.held_until = std::min(q.held_until, in->read_to(polled(), loop_.all_reported()));
         std::sort(q.frames.begin(), q.frames.end(), [](const WaitingFrame& a, const WaitingFrame& b) {
             return a.arrival != b.arrival ? a.arrival < b.arrival : a.order < b.order;
         });

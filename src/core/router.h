@@ -67,32 +67,28 @@ public:
         ~Input();
         Input(const Input&) = delete;
         Input& operator=(const Input&) = delete;
-        /// After each read: `full` when it filled its whole batch (more waits in the kernel)
-        /// and `until` when the last datagram it read arrived; else `until` is when the read
-        /// was made (everything that arrived before it was read). `first`: when the first
-        /// datagram it read arrived (none read: a time point of zero).
-        void read(bool full, TimePoint until, TimePoint first) {
-            backlog_ = full;
+        /// After each read: `until` when the last datagram it read arrived (more may wait
+        /// behind it: a read may return fewer than it could), or when the read was made if it
+        /// found nothing (everything that arrived before was read). `first`: when the first
+        /// datagram it read arrived, from a socket epoll reported readable (else zero).
+        void read(TimePoint until, TimePoint first) {
             last_ = until;
             if (first != TimePoint{} && watch_.ready_this_round())
                 router_.polled_no_earlier_than(first);
         }
-        /// A read that failed (an ICMP error comes first): data may still wait behind it.
-        void read_failed() { backlog_ = true; }
 
     private:
         friend class Router;
         /// The time up to which every datagram that arrived for it has been read, as far as
         /// this round shows: a socket epoll did not report had nothing new when epoll looked
         /// (`polled`, a time no later than that); one it did is read to where its read got.
-        TimePoint read_to(TimePoint polled) const {
-            return backlog_ || watch_.ready_this_round() ? last_ : std::max(last_, polled);
+        TimePoint read_to(TimePoint polled, bool all_reported) const {
+            return watch_.ready_this_round() || !all_reported ? last_ : std::max(last_, polled);
         }
         Router& router_;
         std::string bond_name_;
         uint32_t bond_ = kNoBond;
         const EventLoop::Watch& watch_;
-        bool backlog_ = false;
         TimePoint last_{};
     };
 
@@ -167,7 +163,7 @@ private:
         size_t handled = 0;  // frames routed by the merge under way
         TimePoint held_until = TimePoint::max();  // frames after it wait for the next round
         /// Whether a frame that arrived at `t` must wait for others that may have come before.
-        bool must_wait(TimePoint t, TimePoint polled) const;
+        bool must_wait(TimePoint t, TimePoint polled, bool all_reported) const;
     };
     /// Learn, filter, route, queue.
     void route(Endpoint& from, const Frame& frame, TimePoint arrival);

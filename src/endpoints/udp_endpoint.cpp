@@ -209,14 +209,12 @@ void UdpServer::on_events(uint32_t events) {
     int n = batch_.receive(fd_.get());
     if (n < 0) {
         // ICMP errors surface here for a peer that went away: nothing to do but go on.
-        input_->read_failed();
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
     stats_.rx_overflows += batch_.take_overflows();
     // A socket epoll reported readable held its first datagram when epoll looked.
-    input_->read(batch_.full(), batch_.read_until(),
-                 events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
+    input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
         TimePoint arrival = batch_.arrival(idx);
@@ -283,14 +281,12 @@ void UdpClient::on_events(uint32_t events) {
         // the next send: it is still a datagram we sent that was lost, so a transmit error.
         if (n == -ECONNREFUSED)
             stats_.tx_errors++;
-        input_->read_failed();
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
     stats_.rx_overflows += batch_.take_overflows();
     // A socket epoll reported readable held its first datagram when epoll looked.
-    input_->read(batch_.full(), batch_.read_until(),
-                 events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
+    input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
         route_datagram(batch_.data(idx), *this, stats_, policy_, router_, batch_.arrival(idx));

@@ -32,10 +32,9 @@ public:
     const sockaddr_in& from(size_t i) const { return addrs_[i]; }
     /// When datagram i arrived (the kernel's receive time, on the monotonic clock).
     TimePoint arrival(size_t i) const { return arrival_[i]; }
-    /// What the last receive() tells the router: whether the batch was full, and the time up
-    /// to which the socket is read (the last arrival when full, else when it was read).
-    bool full() const { return count_ == kCount; }
-    TimePoint read_until() const { return full() ? arrival_[kCount - 1] : read_at_; }
+    /// What the last receive() tells the router: the time up to which the socket is read (the
+    /// last datagram's arrival, or when it was read if it found none).
+    TimePoint read_until() const { return count_ ? arrival_[count_ - 1] : read_at_; }
     /// When the first datagram of the last receive() arrived (zero when there was none).
     TimePoint first_arrival() const { return count_ ? arrival_[0] : TimePoint{}; }
     /// Datagrams the kernel dropped for a full receive buffer since the last call.
