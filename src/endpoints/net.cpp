@@ -2,6 +2,7 @@
 
 #include <arpa/inet.h>
 #include <netdb.h>
+#include <linux/sock_diag.h>
 #include <sys/socket.h>
 
 #include <algorithm>
@@ -57,10 +58,18 @@ void set_up_datagram_socket(int fd, size_t rx_buffer, const std::string& name) {
                     name.c_str(), granted, rx_buffer);
     int one = 1;
     setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one);
-    setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one);
 }
 
 }  // namespace
+
+uint64_t socket_drops(int fd) {
+    uint32_t info[SK_MEMINFO_VARS] = {};
+    socklen_t len = sizeof info;
+    if (fd < 0 || getsockopt(fd, SOL_SOCKET, SO_MEMINFO, info, &len) < 0 ||
+        len <= SK_MEMINFO_DROPS * sizeof(uint32_t))
+        return 0;
+    return info[SK_MEMINFO_DROPS];
+}
 
 Result<UniqueFd> make_socket(int type, size_t rx_buffer, const std::string& name) {
     UniqueFd fd(socket(AF_INET, type | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));

@@ -28,5 +28,8 @@ struct BoundSocket {
 Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port,
                                 size_t rx_buffer = 0, const std::string& name = "");
 std::string errno_text(int err);
+/// Datagrams the kernel dropped for this socket since it was made (its receive buffer full):
+/// the socket's own counter (SO_MEMINFO), exact whenever it is read.
+uint64_t socket_drops(int fd);
 
 }  // namespace mavbond

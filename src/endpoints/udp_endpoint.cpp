@@ -55,11 +55,6 @@ void DatagramBatch::read_control(size_t i, TimePoint now, int64_t real_minus_mon
             std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
             int64_t mono = ts.tv_sec * 1'000'000'000LL + ts.tv_nsec - real_minus_mono;
             t = std::min(now, TimePoint(Duration(mono)));
-        } else if (c->cmsg_type == SO_RXQ_OVFL) {
-            uint32_t drops;
-            std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
-            overflows_ += static_cast<uint32_t>(drops - kernel_drops_);
-            kernel_drops_ = drops;
         }
     }
     // A wall clock stepped back between two arrivals must not make the later one earlier.
@@ -149,6 +144,7 @@ UdpServer::~UdpServer() {
 
 EndpointStats UdpServer::total_stats() const {
     EndpointStats total = stats_;
+    total.rx_overflows = socket_drops(fd_.get());
     total += retired_;
     for (const auto& peer : peers_)
         total += peer->stats();
@@ -212,7 +208,6 @@ void UdpServer::on_events(uint32_t events) {
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
-    stats_.rx_overflows += batch_.take_overflows();
     // A socket epoll reported readable held its first datagram when epoll looked.
     input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
@@ -263,6 +258,12 @@ UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, Router& rout
 
 UdpClient::~UdpClient() { router_.remove(*this); }
 
+EndpointStats UdpClient::total_stats() const {
+    EndpointStats total = stats_;
+    total.rx_overflows = socket_drops(fd_.get());
+    return total;
+}
+
 int UdpClient::write_datagrams(const iovec* frames, size_t count) {
     return send_datagrams(fd_.get(), frames, count, nullptr);
 }
@@ -284,7 +285,6 @@ void UdpClient::on_events(uint32_t events) {
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
-    stats_.rx_overflows += batch_.take_overflows();
     // A socket epoll reported readable held its first datagram when epoll looked.
     input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {

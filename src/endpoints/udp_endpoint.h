@@ -18,7 +18,7 @@
 namespace mavbond {
 
 /// A batch of datagrams received with one recvmmsg, each with the time the kernel received it
-/// (SO_TIMESTAMPNS) and the socket's drop count (SO_RXQ_OVFL). Every slot takes the largest
+/// (SO_TIMESTAMPNS). Every slot takes the largest
 /// datagram UDP can carry (a bridge may pack many frames into one), yet costs memory only for
 /// what is written: the arena is never initialised, so untouched pages are never made resident.
 class DatagramBatch {
@@ -37,12 +37,10 @@ public:
     TimePoint read_until() const { return count_ ? arrival_[count_ - 1] : read_at_; }
     /// When the first datagram of the last receive() arrived (zero when there was none).
     TimePoint first_arrival() const { return count_ ? arrival_[0] : TimePoint{}; }
-    /// Datagrams the kernel dropped for a full receive buffer since the last call.
-    uint64_t take_overflows() { return std::exchange(overflows_, 0); }
 
 private:
-    // Room for a timestamp and a drop counter.
-    static constexpr size_t kControl = CMSG_SPACE(sizeof(timespec)) + CMSG_SPACE(sizeof(uint32_t));
+    // Room for a timestamp.
+    static constexpr size_t kControl = CMSG_SPACE(sizeof(timespec));
     uint8_t* slot(size_t i) const { return arena_.get() + i * kSize; }
     void read_control(size_t i, TimePoint now, int64_t realtime_minus_mono_ns);
     std::unique_ptr<uint8_t[]> arena_;
@@ -54,8 +52,6 @@ private:
     size_t count_ = 0;
     TimePoint read_at_{};
     TimePoint last_arrival_{};  // arrivals never go back (a stepped wall clock)
-    uint32_t kernel_drops_ = 0; // the socket's drop counter as last seen
-    uint64_t overflows_ = 0;
 };
 
 class UdpServer;
@@ -118,6 +114,7 @@ public:
                                                    Router& router, UnknownIdPolicy policy);
     ~UdpClient() override;
     const char* kind() const override { return "udp-client"; }
+    EndpointStats total_stats() const override;
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;

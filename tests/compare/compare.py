@@ -2,21 +2,27 @@
 same emulated link conditions, with tables and plots.
 
     compare.py [--out build/compare] [--only paper,outage] [--jobs 2] [--stream auto|synth|FILE]
-               [--scale 0.5] [--publish]
+               [--scale 0.5] [--no-stall] [--publish [--readme-out FILE]]
 
 Each scenario (scenarios.py) runs in its own worker process (lab.py: real mavbond gateways and
-link emulators, the three modes side by side); at most --jobs at a time (2 on 2 cores: each
-worker's processes need about half a core). The dedup window experiment (window_cost.py) is
-one more job. Then the figures (analyze.py) go into OUT/results.md and the plots (plots.py) into
-OUT/*.png. --publish copies results.md and the PNGs to tests/compare/results/ and rewrites the
-README's "## Results" section from this run."""
+a link emulator, the three modes side by side, every ground gateway frozen on a schedule
+unless --no-stall); at most --jobs at a time (2 on 2 cores: each worker's processes need about
+half a core). The dedup window experiment (window_cost.py) and the stale_after sweep
+(stale_after.py) are two more jobs. Then the figures (analyze.py) go into OUT/results.md and
+the plots (plots.py) into OUT/*.png. --publish copies results.md and the PNGs to
+tests/compare/results/ and rewrites the README's "## Results" section from this run (or writes
+it to --readme-out).
+
+Exits 1 when dedup is not exact somewhere: a duplicate delivered, a good frame dropped (a frame
+some link carried that is not a sample dedup dropped as stale, by its own count), or a record
+that cannot be judged (a socket overflowed, a freeze that did not happen); it names the
+scenario and why. No run is ever repeated."""
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -45,6 +51,9 @@ def ms(x) -> str:
 
 # --- workers ------------------------------------------------------------------------------
 
+JOBS = {"window": 45, "stale": 95}   # the jobs beside the scenarios, and about how long each takes
+
+
 def worker(args) -> int:
     out = Path(args.out)
     (out / "raw").mkdir(parents=True, exist_ok=True)
@@ -53,20 +62,17 @@ def worker(args) -> int:
         shutil.rmtree(workdir)
     if args.worker == "window":
         import window_cost  # noqa: PLC0415
-        raw = window_cost.run(args.mavbond, args.plugin_dir, workdir)
+        raw = window_cost.run(args.mavbond, args.plugin_dir, workdir, stall=args.stall)
+    elif args.worker == "stale":
+        import stale_after  # noqa: PLC0415
+        raw = stale_after.run(args.mavbond, args.plugin_dir, args.stream, workdir)
     else:
         sc = S.get(args.worker)
         sc = dataclasses.replace(sc, seconds=round(sc.seconds * args.scale, 1),
                                  outages={k: (a * args.scale, b * args.scale)
                                           for k, (a, b) in sc.outages.items()})
-        for attempt in (1, 2):  # a port taken between free_port() and bind: try once more
-            try:
-                raw = lab.run(sc, args.mavbond, args.plugin_dir, args.stream, workdir)
-                break
-            except AssertionError as e:
-                if attempt == 2:
-                    raise
-                print(f"[{sc.name}] retrying after: {str(e)[:300]}", flush=True)
+        raw = lab.run(sc, args.mavbond, args.plugin_dir, lab.stream_for(sc, args.stream),
+                      workdir, stall=args.stall)
     (out / "raw" / f"{args.worker}.json").write_text(json.dumps(raw))
     return 0
 
@@ -79,7 +85,8 @@ def run_jobs(args, names) -> float:
         t = time.monotonic()
         cmd = [sys.executable, str(Path(__file__)), "--worker", name, "--out", str(out),
                "--mavbond", args.mavbond, "--plugin-dir", args.plugin_dir,
-               "--stream", args.stream, "--scale", str(args.scale)]
+               "--stream", args.stream, "--scale", str(args.scale),
+               "--stall" if args.stall else "--no-stall"]
         r = subprocess.run(cmd, stdin=subprocess.DEVNULL)
         print(f"==> {name}: {'done' if r.returncode == 0 else 'FAILED'} in "
               f"{time.monotonic() - t:.0f} s", flush=True)
@@ -94,19 +101,27 @@ def run_jobs(args, names) -> float:
 
 # --- report -------------------------------------------------------------------------------
 
+def freezes(x) -> str:
+    return f"{len(x['freezes'])} ({x['frozen_s']:.1f} s)" if x["freezes"] else "0"
+
+
 def scenario_table(sc, mets) -> list:
     lines = ["| mode | frames sent | loss per link | delivered loss | lost on every link | "
-             "duplicates delivered | out of order | lost in switchover | latency p50 / p99 (ms) |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
+             "duplicates delivered | good frames dropped | stale drops | out of order | "
+             "lost in switchover | latency p50 / p99 (ms) | freezes (frozen) |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for m in S.MODES:
         if m not in mets:
             continue
         x = mets[m]
         links = ", ".join(f"{n} {pct(v)}" for n, v in x["link_loss"].items())
         sw = str(x["switch_lost"]) if m == "linkswitch" else "-"
+        dedup = m == "dedup"
         lines.append(f"| {S.MODE_TITLES[m]} | {x['n']} | {links} | {pct(x['delivered_loss'], 3)} "
-                     f"| {x['lost_all']} | {x['duplicates']} | {x['out_of_order']} | {sw} | "
-                     f"{ms(x['latency_p50'])} / {ms(x['latency_p99'])} |")
+                     f"| {x['lost_all']} | {x['duplicates']} | "
+                     f"{x['good_dropped'] if dedup else '-'} | "
+                     f"{x['stale_counted'] if dedup else '-'} | {x['out_of_order']} | {sw} | "
+                     f"{ms(x['latency_p50'])} / {ms(x['latency_p99'])} | {freezes(x)} |")
     return lines
 
 
@@ -120,10 +135,23 @@ def scenario_notes(sc, mets) -> list:
                    f"**{pct(d['delivered_loss'], 4)}** ({d['not_delivered']} frames"
                    + (f", {ratio:.2f}x the bound" if ratio is not None else "") + "). "
                    f"Frames lost on every link: {d['lost_all']}; frames some link carried that "
-                   f"dedup did not deliver: {d['carried_lost']}"
-                   + (f" (timestamped samples that came late on the slower link, dropped as "
-                      f"stale: {d['carried_lost_timestamped']})" if d['carried_lost'] else "")
-                   + ".")
+                   f"dedup did not deliver: {d['carried_lost']}, of which timestamped samples "
+                   f"more than stale_after behind a delivered one: {d['stale_seen']} (dedup's "
+                   f"`stale` counter: {d['stale_counted']}); good frames dropped: "
+                   f"**{d['good_dropped']}**; duplicates delivered: **{d['duplicates']}**. "
+                   f"Largest step back in a sample's time the GCS saw: "
+                   f"{d['step_back_ms']:.0f} ms.")
+        if d["freezes"]:
+            out.append(f"Each ground gateway was frozen {len(d['freezes'])} times, "
+                       f"{d['frozen_s']:.1f} s in all (dedup's); dedup's gateway held back "
+                       f"{d['held_back']} frames for arrival order after the freezes, its "
+                       f"sockets overflowed {d['rx_overflows']} times, the GCS socket "
+                       f"{d['gcs_drops']}.")
+        if d["exact_share"] < 1:
+            out.append(f"Only {d['exact_share']:.0%} of the frames are unique within "
+                       f"{lab.HORIZON:g} s: latency and order are measured on those; the "
+                       f"counts on all (which instance of a recurring frame a delivery was, "
+                       f"its bytes cannot tell).")
     ls = mets.get("linkswitch")
     if ls:
         best = min(ls["link_loss"].values())
@@ -149,7 +177,9 @@ def window_section(w) -> list:
     lines = [
         f"{w['n']} frames at {w['rate']}/s, a cycle of 256 byte-identical frames (every frame "
         f"recurs every 0.256 s); link_a 5 % loss 10 ms, link_b 5 % loss 300 ms (more than one "
-        f"cycle behind). Two ground gateways on the same frames and seeds.",
+        f"cycle behind). Two ground gateways on the same datagrams"
+        + (", both frozen on the same schedule as the scenarios'" if w.get("stall") else "")
+        + ".",
         "",
         "| dedup config | reached the gateway | delivered | false drops (legitimate repeats lost) "
         "| duplicates | naive hash set, same window | naive per-link counter |",
@@ -169,23 +199,64 @@ def window_section(w) -> list:
     return lines
 
 
+def stale_table(st) -> list:
+    """One row per case and setting: stale drops, delivered loss against the bound, the
+    largest step back a GCS saw."""
+    if not st:
+        return []
+    names = {"0": "0 (the old rule)", "off": "drop_stale off"}
+    lines = ["| scenario | stale_after | samples dropped as stale | delivered loss | "
+             "independence bound | largest step back a GCS saw (ms) |",
+             "|---|---|---:|---:|---:|---:|"]
+    for case_name, c in st["cases"].items():
+        for k, r in c["results"].items():
+            label = names.get(k, k) + (" (default)" if k == st["default"] else "")
+            bold = "**" if k == st["default"] else ""
+            lines.append(f"| {case_name} | {bold}{label}{bold} | {r['stale_counted']} | "
+                         f"{pct(r['delivered_loss'], 3)} ({r['not_delivered']}) | "
+                         f"{pct(r['bound'], 4)} | {r['step_back_ms']:.0f} |")
+    return lines
+
+
+def stale_section(st) -> list:
+    if not st:
+        return []
+    lines = ["Six dedup gateways on the same datagrams (one emulator process teeing every link "
+             "to each), not frozen: what the links add in normal operation. Delivered loss in "
+             "% (frames); the bound is what no link carried if losses are independent. "
+             "The step back is how far a delivered sample's time_boot_ms / time_usec was "
+             "behind the newest of its stream already delivered.", ""]
+    for name, c in st["cases"].items():
+        links = "; ".join(f"{l}: {label}" for l, label in c["links"].items())
+        lines.append(f"- {name}: {c['title']} ({c['seconds']:g} s, {c['n']} frames, "
+                     f"{c['timestamped']} timestamped; {links})")
+    return lines + [""] + stale_table(st)
+
+
 def build_report(out: Path, names, runtime: float, args) -> dict:
     import analyze  # noqa: PLC0415
     import plots  # noqa: PLC0415
     raws = {n: json.loads((out / "raw" / f"{n}.json").read_text()) for n in names
             if (out / "raw" / f"{n}.json").exists()}
     window = raws.pop("window", None)
+    stale = raws.pop("stale", None)
     mets = {n: analyze.scenario_metrics(r) for n, r in raws.items()}
+    stalled = any(r["stall"] for r in raws.values())
     lines = ["# mavbond: dedup vs link switching vs one link", ""]
-    stream = next(iter(raws.values()))["stream"] if raws else "-"
-    lines += [f"Stream: {stream}. Run: `scripts/compare` ({runtime:.0f} s, {os.cpu_count()} "
-              f"cores). Per-link loss comes from the link emulators' drop logs; delivered loss, "
-              f"duplicates, order and latency from what the GCS received (latency includes the "
-              f"emulated link delay).", ""]
+    streams = sorted({r["stream"] for r in raws.values()})
+    lines += [f"Streams: {'; '.join(streams) or '-'}. Run: `scripts/compare` ({runtime:.0f} s, "
+              f"{os.cpu_count()} cores). Per-link loss comes from the link emulator's drop logs; "
+              f"delivered loss, duplicates, order and latency from what the GCS received "
+              f"(latency includes the emulated link delay); stale drops from dedup's own "
+              f"counter (status socket)."
+              + (" Every ground gateway frozen (SIGSTOP/SIGCONT) 150 ms every 2 to 2.5 s and "
+                 "once for 1 s (6 s into the stream), on one seeded schedule per scenario."
+                 if stalled else " No freezes (--no-stall)."), ""]
     summary_rows = []
     lines += ["## Summary", "",
               "| scenario | loss per link | independence bound | one link alone | linkswitch | "
-              "dedup |", "|---|---|---:|---:|---:|---:|"]
+              "dedup | dedup: duplicates / good dropped / stale drops | freezes per gateway |",
+              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for sc in S.SCENARIOS:
         if sc.name not in mets:
             continue
@@ -197,14 +268,16 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
             row[mode] = m[mode]["delivered_loss"] if mode in m else 0.0
         summary_rows.append(row)
         lines.append(f"| {sc.name}: {sc.title} | {links} | {pct(d['bound'], 4)} | "
-                     + " | ".join(pct(row[mo], 3) for mo in S.MODES) + " |")
+                     + " | ".join(pct(row[mo], 3) for mo in S.MODES)
+                     + f" | {d['duplicates']} / {d['good_dropped']} / {d['stale_counted']} | "
+                     f"{freezes(d)} |")
     lines.append("")
     for sc in S.SCENARIOS:
         if sc.name not in mets:
             continue
         link_desc = "; ".join(f"{l.name}: {l.label}" for l in sc.links)
         lines += [f"## {sc.name}: {sc.title}", "", f"{sc.note} Links: {link_desc}. "
-                  f"One link alone is {sc.links[0].name}.", ""]
+                  f"One link alone is {sc.links[0].name}. Stream: {raws[sc.name]['stream']}.", ""]
         lines += scenario_table(sc, mets[sc.name]) + [""]
         lines += scenario_notes(sc, mets[sc.name]) + [""]
         lines += [f"![{sc.name}]({sc.name}.png)", ""]
@@ -212,21 +285,45 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
     if summary_rows:
         plots.summary_plot(summary_rows, out / "summary.png")
         lines += ["## Across scenarios", "", "![summary](summary.png)", ""]
+    if stale:
+        lines += ["## stale_after, from the data", ""] + stale_section(stale) + [""]
     if window:
         lines += ["## The dedup window: what the paper's 5 s and 32-bit hash cost", ""]
         lines += window_section(window) + [""]
     (out / "results.md").write_text("\n".join(lines))
     (out / "metrics.json").write_text(json.dumps(
-        {"runtime_s": runtime, "window": window,
+        {"runtime_s": runtime, "window": window, "stale": stale,
          "scenarios": {n: {mo: {k: v for k, v in x.items() if k != "per_second"}
                            for mo, x in m.items()} for n, m in mets.items()}}, indent=1))
     print("\n".join(lines))
-    return {"mets": mets, "window": window, "raws": raws, "summary": summary_rows}
+    return {"mets": mets, "window": window, "stale": stale, "raws": raws,
+            "summary": summary_rows, "stalled": stalled}
 
 
-def checks(mets) -> list:
-    """The paper's findings, checked on this run."""
-    out = []
+def checks(rep) -> list:
+    """(what, ok, detail): dedup exact in every scenario, job and setting (analyze's strict
+    verdict), and the paper's findings on its scenario."""
+    import analyze  # noqa: PLC0415
+    mets, out = rep["mets"], []
+    for sc in S.SCENARIOS:
+        d = mets.get(sc.name, {}).get("dedup")
+        if d:
+            problems = analyze.dedup_verdict(d, rep["stalled"])
+            out.append((f"{sc.name}: dedup delivered every frame a link carried exactly once",
+                        not problems, "; ".join(problems) or
+                        f"0 duplicates, 0 good frames dropped, {d['stale_counted']} stale"))
+    st = rep.get("stale")
+    for case, c in (st or {}).get("cases", {}).items():
+        for k, r in c["results"].items():
+            if r["problems"]:
+                out.append((f"stale_after {k} on {case}: dedup exact", False,
+                            "; ".join(r["problems"])))
+    w = rep.get("window")
+    for name, c in (w or {}).get("configs", {}).items():
+        out.append((f"window ({name}): no legitimate repeat lost, no duplicate",
+                    not c["false_drops"] and not c["duplicates"] and not c["problems"],
+                    "; ".join(c["problems"]) or f"{c['false_drops']} false drops, "
+                    f"{c['duplicates']} duplicates"))
     p = mets.get("paper")
     if p and "dedup" in p:
         d = p["dedup"]
@@ -247,16 +344,22 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(REPO / "build" / "compare"))
-    ap.add_argument("--only", help="comma-separated scenario names (and/or 'window')")
+    ap.add_argument("--only", help="comma-separated scenario names (and/or 'window', 'stale')")
     ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
     ap.add_argument("--stream", default="auto",
                     help="auto (the ArduSub recording in ../shared/data/tlogs, else synthetic), "
                          "synth, or a .tlog to replay")
     ap.add_argument("--scale", type=float, default=1.0,
                     help="scale every scenario's length (0.25 for a quick look)")
+    ap.add_argument("--stall", action=argparse.BooleanOptionalAction, default=True,
+                    help="freeze every ground gateway 150 ms every 2-2.5 s and once for 1 s "
+                         "(default on; --no-stall: never)")
     ap.add_argument("--publish", action="store_true",
                     help="copy results.md and the PNGs to tests/compare/results/ and rewrite "
                          "the README's Results section")
+    ap.add_argument("--readme-out", metavar="FILE",
+                    help="with --publish: write the Results section to FILE instead of "
+                         "rewriting README.md")
     ap.add_argument("--mavbond", default=os.environ.get(
         "MAVBOND_BIN", str(REPO / "build" / "src" / "mavbond")))
     ap.add_argument("--plugin-dir")
@@ -267,8 +370,11 @@ def main() -> int:
     args = ap.parse_args()
     if args.list:
         for sc in S.SCENARIOS:
-            print(f"{sc.name:<11} {sc.seconds:>4g} s  {sc.title}")
-        print(f"{'window':<11} {'10':>4} s  the dedup window and hash: false drops measured")
+            print(f"{sc.name:<13} {sc.seconds:>4g} s  {sc.title}")
+        print(f"{'window':<13} {'10':>4} s  the dedup window and hash: false drops measured")
+        import stale_after  # noqa: PLC0415
+        print(f"{'stale':<13} {stale_after.SECONDS:>4g} s  stale_after 0 to 1 s and off, "
+              f"on {len(stale_after.CASES)} streams")
         return 0
     if not args.plugin_dir:
         args.plugin_dir = str(Path(args.mavbond).resolve().parent.parent / "plugins")
@@ -279,7 +385,7 @@ def main() -> int:
     except ImportError:
         raise SystemExit("matplotlib is missing from this Python (scripts/setup.sh installs it "
                          "into .venv)") from None
-    names = [s.name for s in S.SCENARIOS] + ["window"]
+    names = [s.name for s in S.SCENARIOS] + list(JOBS)
     if args.only:
         want = args.only.split(",")
         bad = [w for w in want if w not in names]
@@ -288,7 +394,7 @@ def main() -> int:
         names = [n for n in names if n in want]
     # longest first, so two at a time finish together
     length = {s.name: s.seconds for s in S.SCENARIOS}
-    length["window"] = 45
+    length.update(JOBS)
     names.sort(key=lambda n: -length[n])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -300,14 +406,17 @@ def main() -> int:
         runtime = run_jobs(args, names)
         (out / "runtime.txt").write_text(f"{runtime:.1f}\n")
     rep = build_report(out, names, runtime, args)
-    results = checks(rep["mets"])
+    results = checks(rep)
     for what, ok, detail in results:
         print(f"{'ok  ' if ok else 'FAIL'} {what}: {detail}")
     print(f"\nresults: {out / 'results.md'} and {out}/*.png ({runtime:.0f} s)")
     if args.publish:
         import publish  # noqa: PLC0415
-        publish.publish(out, rep, runtime, results)
-    return 0 if all(ok for _, ok, _ in results) else 1
+        publish.publish(out, rep, runtime, results, readme_out=args.readme_out)
+    failed = [(what, detail) for what, ok, detail in results if not ok]
+    for what, detail in failed:
+        print(f"FAILED: {what}: {detail}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """PNG plots in the style of the paper's Fig. 5.1 and 5.2: packet loss per second of each link
-and of the delivered (filtered) stream, one panel per mode; and a bar chart of the delivered
-loss across scenarios. matplotlib, Agg backend (no display needed)."""
+and of the delivered (filtered) stream, one panel per mode, with the gateway's freezes shaded
+and dedup's stale drops per second; and a bar chart of the delivered loss across scenarios.
+matplotlib, Agg backend (no display needed)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,6 +37,13 @@ def scenario_plot(sc: S.Scenario, metrics: Dict[str, dict], path: Path) -> None:
         ys = ps["delivered"]
         ax.plot(range(len(ys)), ys, color=DELIVERED, lw=1.8,
                 label=f"delivered ({mm['delivered_loss']:.3%})")
+        if "stale" in ps:
+            ys = ps["stale"]
+            ax.plot(range(len(ys)), ys, color="tab:red", lw=1.0, ls=":",
+                    label=f"stale drops ({mm['stale_counted']})")
+        for k, (a, b) in enumerate(mm["freezes"]):
+            ax.axvspan(a, b, color="tab:gray", alpha=0.25, lw=0,
+                       label=f"frozen ({len(mm['freezes'])}x)" if k == 0 else None)
         ax.set_ylim(-top * 0.03, top)
         ax.set_ylabel("loss per s (%)")
         title = S.MODE_TITLES[m]
@@ -43,7 +51,7 @@ def scenario_plot(sc: S.Scenario, metrics: Dict[str, dict], path: Path) -> None:
             title += f" ({mm['links'][0]})"
         ax.set_title(title, loc="left", fontsize=10)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right", ncol=len(mm["links"]) + 1, framealpha=0.85)
+        ax.legend(fontsize=8, loc="upper right", ncol=len(mm["links"]) + 3, framealpha=0.85)
         for sw in mm.get("switches", []):
             ax.axvline(sw["t"], color="red", lw=0.8, ls="--")
     axes[-1, 0].set_xlabel("time (s)")

@@ -1,11 +1,10 @@
 """The link conditions the comparison runs: each scenario is a set of emulated links
-(tests/tools/linkemu.py options, one seed per link) and how long the stream runs.
+(tests/tools/linkemu.py options, one seed per link), the stream and how long it runs.
 
-Every scenario is run three times on the same stream and the same per-link seeds: one link
-alone (the first link), `linkswitch` and `dedup` (both with their defaults, which are the
-paper's thresholds: 1 s silence, 5 % loss over 5 s). The link emulators' loss decisions depend
-only on (seed, datagram index), so link A loses the same frames in all three runs; what
-depends on timing (an outage start, a full radio queue) can differ by a few frames."""
+Every scenario runs three modes side by side on the same datagrams: one link alone (the first
+link), `linkswitch` and `dedup` (both with their defaults). One emulator process carries the
+links and tees each to every mode's ground gateway, so a link loses and delays the same
+frames in all three modes, whatever the timing."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -32,6 +31,10 @@ class Scenario:
     outages: Dict[str, tuple] = field(default_factory=dict)
     linkswitch: Dict[str, object] = field(default_factory=dict)
     dedup: Dict[str, object] = field(default_factory=dict)
+    # "vehicle": the autopilot stream of --stream (a recording, or synthetic); "repeats":
+    # 1,000 frames/s of a 256-frame cycle of identical bytes (tests/integration/test_stalls.py);
+    # "stamped_1khz": 1,000 ATTITUDE frames/s, each with its own time_boot_ms.
+    stream: str = "vehicle"
 
 
 # The 57600-baud radio: 8N1 leaves 46,080 bit/s of payload; a SiK radio buffers a few KB.
@@ -80,6 +83,25 @@ SCENARIOS: List[Scenario] = [
               {"loss": "1%", "delay": "50ms", "jitter": "15ms"})],
         note="The stream fills most of the radio's 46 kbit/s of payload: frames queue behind "
              "each other when the autopilot sends in bursts (a full 4 KB queue drops)."),
+    Scenario(
+        "radio_lte", "A 57600-baud radio beside LTE", 60,
+        [Link("radio", "57600 baud, 1 %, 30 ms +-10 ms", 71,
+              {"loss": "1%", "delay": "30ms", "jitter": "10ms", **RADIO_57600}),
+         Link("lte", "1 %, 60 ms, normal jitter 30 ms, reordering", 72,
+              {"loss": "1%", "delay": "60ms", "jitter": "30ms", "jitter_dist": "normal",
+               "reorder": True})],
+        note="The usual pair: the radio's queue and the modem's jitter (normal, sigma 30 ms, "
+             "clipped at 90 ms, so LTE datagrams overtake each other) make the two links' "
+             "copies of a frame come in either order, tens of ms apart."),
+    Scenario(
+        "repeats_1khz", "1,000 frames/s, the same bytes every 256 frames", 30,
+        [Link("a", "5 %, 10 ms", 81, {"loss": "5%", "delay": "10ms"}),
+         Link("b", "5 %, 310 ms", 82, {"loss": "5%", "delay": "310ms"})],
+        stream="repeats",
+        note="A 256-frame cycle of HEARTBEAT, SYS_STATUS and VFR_HUD without timestamps, every "
+             "4th frame a unique VFR_HUD: the sequence byte wraps every 0.256 s, so byte-"
+             "identical frames recur well inside the window, and link b is 300 ms (more than "
+             "a cycle) behind link a. Only identity can tell a repeat from a copy."),
 ]
 
 BY_NAME = {s.name: s for s in SCENARIOS}
@@ -101,6 +123,11 @@ def filters_for(mode: str, sc: Scenario) -> List[dict]:
 
 def links_for(mode: str, sc: Scenario) -> List[Link]:
     return sc.links[:1] if mode == "single" else list(sc.links)
+
+
+def modes(sc: Scenario) -> Dict[str, tuple]:
+    """{mode: (names of the links its ground gateway gets, its filters)}, as lab.run takes."""
+    return {m: ([l.name for l in links_for(m, sc)], filters_for(m, sc)) for m in MODES}
 
 
 def get(name: str) -> Optional[Scenario]:
