@@ -120,7 +120,6 @@ struct Entry {
     uint32_t home;  // table slot the key hashes to (for backward-shift deletion)
     uint32_t rec[kInstances];
     uint8_t count;
-    uint8_t recurred;  // the key has had two instances in the window at once (a HEARTBEAT...)
 };
 
 /// A source's frames in one bond, numbered by the bond (positions of the first link heard).
@@ -478,7 +477,6 @@ uint32_t Dedup::insert_entry(uint32_t bond, Key key) {
     en.h2 = key.h2;
     en.bond = bond;
     en.count = 0;
-    en.recurred = 0;
     en.home = table_home(key.h1, bond);
     uint32_t i = en.home;
     while (table_[i] != 0)
@@ -554,8 +552,6 @@ void Dedup::expire(uint64_t now) {
 uint32_t Dedup::add_instance(uint32_t e, const Record& rec) {
     Entry& en = entries_[e];
     uint8_t slot = en.count;
-    if (en.count > 0)
-        en.recurred = 1;
     if (en.count == kInstances) {
         // The key's oldest instance is no longer a candidate for aligning a link; its
         // position still holds it until expiry pops it.

@@ -28,10 +28,8 @@ Router::Router(EventLoop& loop, Duration route_timeout, const std::vector<BondCo
 }
 
 void Router::replace_bonds(const std::vector<BondConfig>& bonds) {
-    // Frames waiting for a bond that is replaced are handled first, in the order they came.
-    for (ArrivalQueue& q : queues_)
-        q.held_until = TimePoint::max();
-    merge_round();
+    // Frames waiting in a bond that is replaced are handled first, in the order they came.
+    merge_round(true);
     bonds_.clear();
     for (const auto& b : bonds)
         bonds_.push_back(Bond{b.name, b.tx == BondConfig::Tx::Active});
@@ -245,10 +243,10 @@ void Router::wait_aside(ArrivalQueue& queue, Endpoint& from, const Frame& frame,
     auto offset = static_cast<uint32_t>(queue.arena.size());
     queue.arena.insert(queue.arena.end(), frame.bytes.begin(), frame.bytes.end());
     queue.frames.push_back(WaitingFrame{arrival, wait_order_++, &from, frame, offset});
-    frames_merged_++;
+    frames_held_back_++;
 }
 
-void Router::merge_round() {
+void Router::merge_round(bool all) {
     bool any = false;
     for (ArrivalQueue& q : queues_) {
         if (q.frames.empty())
@@ -256,8 +254,10 @@ void Router::merge_round() {
         any = true;
         // Every frame up to the time each input is known to be read to.
         q.held_until = TimePoint::max();
-        for (const Input* in : q.inputs)
-            q.held_until = std::min(q.held_until, in->read_to(polled(), loop_.all_reported()));
+        for (const Input* in : q.inputs) {
+            if (!all)
+                q.held_until = std::min(q.held_until, in->read_to(polled(), loop_.all_reported()));
+        }
         std::sort(q.frames.begin(), q.frames.end(), [](const WaitingFrame& a, const WaitingFrame& b) {
             return a.arrival != b.arrival ? a.arrival < b.arrival : a.order < b.order;
         });

@@ -14,11 +14,10 @@
 // handed on link by link, the frames one link lost would come after newer ones another link
 // carried (and be dropped as stale, or numbered out of order). So a frame from a bond's link
 // is handled at once only when every socket of the bond is known to be read up to its arrival
-// (a socket epoll did not report had nothing when the round began; one it reported is read to
-// where its read got, the last datagram of a full batch or the time of the read); otherwise it
-// is copied aside, and after the round's reads the copies are handled in arrival order, up to
-// the time every socket of the bond is read to. The rest waits for the next round, which then
-// comes at once.
+// (a socket epoll did not report had nothing when epoll looked; one it reported is read to the
+// last datagram its read returned, since a read may stop short); otherwise it is copied aside,
+// and after the round's reads the copies are handled in arrival order, up to the time every
+// socket of the bond is read to. The rest waits for the next round, which then comes at once.
 #pragma once
 
 #include <cstdint>
@@ -103,9 +102,10 @@ public:
     /// for a bond's link, copy it aside until the frames that arrived before it are in; see
     /// above). The frame's bytes must stay valid until end_batch().
     void handle_frame(Endpoint& from, const Frame& frame, TimePoint arrival);
-    /// Handles the frames copied aside in this round, in arrival order (the event loop calls
-    /// it after every round's reads).
-    void merge_round();
+    /// Handles the frames copied aside, in arrival order, as far as every socket of their bond
+    /// is read (the event loop calls it after every round's reads); `all`: every one of them
+    /// (the bonds are about to be replaced).
+    void merge_round(bool all = false);
     /// The time up to which every frame that arrived has been handled: `now`, or earlier while
     /// a bond's frames wait for a socket still to be read.
     TimePoint arrival_clock(TimePoint now) const;
@@ -138,8 +138,8 @@ public:
     bool knows(const Endpoint& endpoint, uint8_t sysid, uint8_t compid) const;
     uint64_t frames_routed() const { return frames_routed_; }
     uint64_t frames_without_destination() const { return frames_without_destination_; }
-    /// Frames handled after waiting for the frames that arrived before them.
-    uint64_t frames_reordered() const { return frames_merged_; }
+    /// Frames that waited for frames that arrived before them on another link of their bond.
+    uint64_t frames_held_back() const { return frames_held_back_; }
 
 private:
     struct Route {
@@ -198,7 +198,7 @@ private:
     uint64_t wait_order_ = 0;
     TimePoint polled_ = {};      // polled()'s bound for round polled_round_
     uint64_t polled_round_ = 0;
-    uint64_t frames_merged_ = 0;
+    uint64_t frames_held_back_ = 0;
     std::vector<Endpoint*> endpoints_;            // index = endpoint id; nullptr = free slot
     std::vector<uint32_t> bond_of_;               // index = endpoint id
     std::vector<std::vector<Route>> routes_;      // index = endpoint id

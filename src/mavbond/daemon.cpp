@@ -218,7 +218,7 @@ int Daemon::run() {
                "order; peak RSS %ld KiB",
                (unsigned long long)router_.frames_routed(),
                (unsigned long long)router_.frames_without_destination(),
-               (unsigned long long)router_.frames_reordered(), peak_rss_kib());
+               (unsigned long long)router_.frames_held_back(), peak_rss_kib());
     return code;
 }
 
