@@ -33,6 +33,17 @@ void EventLoop::Watch::set_events(uint32_t events) {
 
 uint32_t EventLoop::Watch::events() const { return record_ ? record_->events : 0; }
 
+int64_t EventLoop::wall_minus_monotonic_ns() const {
+    if (wall_round_ != round_) {
+        timespec wall{}, mono{};
+        clock_gettime(CLOCK_REALTIME, &wall);
+        clock_gettime(CLOCK_MONOTONIC, &mono);
+        wall_minus_monotonic_ = (wall.tv_sec - mono.tv_sec) * 1'000'000'000LL + wall.tv_nsec - mono.tv_nsec;
+        wall_round_ = round_;
+    }
+    return wall_minus_monotonic_;
+}
+
 bool EventLoop::Watch::ready_this_round() const {
     return record_ && record_->ready_round == loop_->round_;
 }

@@ -108,6 +108,9 @@ public:
     uint64_t round() const { return round_; }
     /// Whether epoll reported every ready fd in this round (its event array was not full).
     bool all_reported() const { return all_reported_; }
+    /// The wall clock (CLOCK_REALTIME, which the kernel stamps arrivals with) minus the
+    /// monotonic, in ns: read once per round, when first asked.
+    int64_t wall_minus_monotonic_ns() const;
 
 private:
     struct WatchRecord {
@@ -147,6 +150,8 @@ private:
     TimePoint now_ = Clock::now();
     TimePoint polled_after_ = now_;
     bool all_reported_ = true;
+    mutable int64_t wall_minus_monotonic_ = 0;
+    mutable uint64_t wall_round_ = UINT64_MAX;  // the round wall_minus_monotonic_ was read in
     bool exit_requested_ = false;
     int exit_code_ = 0;
 };

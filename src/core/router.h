@@ -14,8 +14,9 @@
 // handed on link by link, the frames one link lost would come after newer ones another link
 // carried (and be dropped as stale, or numbered out of order). So a frame from a bond's link
 // is handled at once only when every socket of the bond is known to be read up to its arrival
-// (a socket epoll did not report had nothing when epoll looked; one it reported is read to the
-// last datagram its read returned, since a read may stop short); otherwise it is copied aside,
+// (a socket epoll did not report had nothing when epoll looked; one it reported is read to
+// where its read got: the last datagram of a full batch, or the time of a read that emptied
+// it); otherwise it is copied aside,
 // and after the round's reads the copies are handled in arrival order, up to the time every
 // socket of the bond is read to. The rest waits for the next round, which then comes at once.
 #pragma once
@@ -66,10 +67,10 @@ public:
         ~Input();
         Input(const Input&) = delete;
         Input& operator=(const Input&) = delete;
-        /// After each read: `until` when the last datagram it read arrived (more may wait
-        /// behind it: a read may return fewer than it could), or when the read was made if it
-        /// found nothing (everything that arrived before was read). `first`: when the first
-        /// datagram it read arrived, from a socket epoll reported readable (else zero).
+        /// After each read: `until`, the time up to which everything that arrived for it has
+        /// been read (the last datagram of a full batch; else the round's start, or the last
+        /// datagram if later). `first`: when the first datagram it read arrived, from a socket
+        /// epoll reported readable (else zero).
         void read(TimePoint until, TimePoint first) {
             last_ = until;
             if (first != TimePoint{} && watch_.ready_this_round())

@@ -22,39 +22,33 @@ DatagramBatch::DatagramBatch() : arena_(std::make_unique_for_overwrite<uint8_t[]
     }
 }
 
-int DatagramBatch::receive(int fd) {
+int DatagramBatch::receive(int fd, const EventLoop& loop) {
     for (size_t i = 0; i < kCount; i++) {
         msgs_[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
         msgs_[i].msg_hdr.msg_controllen = kControl;
         msgs_[i].msg_hdr.msg_flags = 0;
     }
     int n = recvmmsg(fd, msgs_.data(), kCount, MSG_DONTWAIT, nullptr);
-    // The kernel stamps arrivals on the wall clock; the monotonic one is what every timeout
-    // uses. Their difference, read once per batch, converts one to the other.
-    read_at_ = Clock::now();
-    timespec real{};
-    clock_gettime(CLOCK_REALTIME, &real);
-    int64_t real_minus_mono = real.tv_sec * 1'000'000'000LL + real.tv_nsec -
-                              std::chrono::duration_cast<Duration>(read_at_.time_since_epoch()).count();
     count_ = n > 0 ? static_cast<size_t>(n) : 0;
+    // Found the socket empty (or short of a full batch): everything that arrived before the
+    // read was read, so before the round began too.
+    drained_at_ = count_ < kCount ? loop.now() : TimePoint{};
     for (size_t i = 0; i < count_; i++)
-        read_control(i, read_at_, real_minus_mono);
+        read_control(i, loop.wall_minus_monotonic_ns());
     if (n < 0)
         return errno == EAGAIN || errno == EWOULDBLOCK ? 0 : -errno;
     return n;
 }
 
-void DatagramBatch::read_control(size_t i, TimePoint now, int64_t real_minus_mono) {
-    TimePoint t = now;  // no timestamp: the read's time
+void DatagramBatch::read_control(size_t i, int64_t wall_minus_monotonic) {
+    TimePoint t = last_arrival_;  // no timestamp: no later than what came before it
     msghdr& h = msgs_[i].msg_hdr;
     for (cmsghdr* c = CMSG_FIRSTHDR(&h); c; c = CMSG_NXTHDR(&h, c)) {
-        if (c->cmsg_level != SOL_SOCKET)
-            continue;
-        if (c->cmsg_type == SCM_TIMESTAMPNS) {
+        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_TIMESTAMPNS) {
+            // The kernel stamps arrivals on the wall clock; every timeout uses the monotonic.
             timespec ts;
             std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
-            int64_t mono = ts.tv_sec * 1'000'000'000LL + ts.tv_nsec - real_minus_mono;
-            t = std::min(now, TimePoint(Duration(mono)));
+            t = TimePoint(Duration(ts.tv_sec * 1'000'000'000LL + ts.tv_nsec - wall_minus_monotonic));
         }
     }
     // A wall clock stepped back between two arrivals must not make the later one earlier.
@@ -202,7 +196,7 @@ void UdpServer::on_events(uint32_t events) {
     }
     if (!(events & (EPOLLIN | EPOLLERR)))
         return;
-    int n = batch_.receive(fd_.get());
+    int n = batch_.receive(fd_.get(), loop_);
     if (n < 0) {
         // ICMP errors surface here for a peer that went away: nothing to do but go on.
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
@@ -275,7 +269,7 @@ void UdpClient::on_events(uint32_t events) {
         flush();
     if (!(events & (EPOLLIN | EPOLLERR)))
         return;
-    int n = batch_.receive(fd_.get());
+    int n = batch_.receive(fd_.get(), loop_);
     if (n < 0) {
         // ECONNREFUSED: the peer's port is closed (ICMP port unreachable). Keep going. The
         // kernel reports the ICMP on whichever call comes first, usually this read rather than

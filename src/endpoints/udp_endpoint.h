@@ -27,14 +27,17 @@ public:
     static constexpr size_t kSize = 65536;
     DatagramBatch();
     /// Receives up to kCount datagrams; returns how many, 0 when none, -errno on error.
-    int receive(int fd);
+    int receive(int fd, const EventLoop& loop);
     std::span<const uint8_t> data(size_t i) const { return {slot(i), msgs_[i].msg_len}; }
     const sockaddr_in& from(size_t i) const { return addrs_[i]; }
     /// When datagram i arrived (the kernel's receive time, on the monotonic clock).
     TimePoint arrival(size_t i) const { return arrival_[i]; }
     /// What the last receive() tells the router: the time up to which the socket is read (the
-    /// last datagram's arrival, or when it was read if it found none).
-    TimePoint read_until() const { return count_ ? arrival_[count_ - 1] : read_at_; }
+    /// last datagram's arrival; when it came back short of a full batch, the socket was
+    /// empty then: the round's start too).
+    TimePoint read_until() const {
+        return std::max(count_ ? arrival_[count_ - 1] : TimePoint{}, drained_at_);
+    }
     /// When the first datagram of the last receive() arrived (zero when there was none).
     TimePoint first_arrival() const { return count_ ? arrival_[0] : TimePoint{}; }
 
@@ -42,7 +45,7 @@ private:
     // Room for a timestamp.
     static constexpr size_t kControl = CMSG_SPACE(sizeof(timespec));
     uint8_t* slot(size_t i) const { return arena_.get() + i * kSize; }
-    void read_control(size_t i, TimePoint now, int64_t realtime_minus_mono_ns);
+    void read_control(size_t i, int64_t wall_minus_monotonic_ns);
     std::unique_ptr<uint8_t[]> arena_;
     std::array<mmsghdr, kCount> msgs_{};
     std::array<iovec, kCount> iovs_{};
@@ -50,7 +53,7 @@ private:
     std::array<std::array<uint8_t, kControl>, kCount> control_{};
     std::array<TimePoint, kCount> arrival_{};
     size_t count_ = 0;
-    TimePoint read_at_{};
+    TimePoint drained_at_{};    // the round's start, when the last receive found the socket empty
     TimePoint last_arrival_{};  // arrivals never go back (a stepped wall clock)
 };
 
