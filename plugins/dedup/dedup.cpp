@@ -241,6 +241,7 @@ private:
     struct Verdict {
         bool duplicate = false;
         int64_t pos = kUnknownPos;
+        uint32_t entry = kNone;  // the frame's key in the table, when it was looked up
         uint32_t first_link_id = kNone;
         int64_t skew_ns = 0;
     };
@@ -269,7 +270,8 @@ private:
     /// Aligns a link's lane; a changed alignment is logged with `why`.
     void set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why);
     void learn_lag(Member& m, int64_t skew_ns);
-    void remember(const Arrival& a, Key key, int64_t pos);
+    /// Remembers a new frame; `e`: its key's entry as decide() found it (kNone: none yet).
+    void remember(const Arrival& a, Key key, int64_t pos, uint32_t e);
     void note_position(const Arrival& a, Lane& lane, int64_t pos);
     uint32_t pos_home(uint32_t stream, int64_t pos) const;
     /// The instance delivered at a stream's position, or kNone.
@@ -715,6 +717,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     const bool outage = why != nullptr;
     Stream& s = streams_[a.stream];
     Verdict v;
+    v.entry = e;
     if (s.head == kUnknownPos) {
         // The stream's first frame: this link's numbering becomes the bond's.
         set_alignment(a, lane, 0, "the stream's first frame");
@@ -822,13 +825,12 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
 Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     Lane& lane = lane_of(a);
     Stream& s = streams_[a.stream];
-    uint32_t e = find(a.bond, key);
     if (!lane.aligned)
-        return align(a, lane, e, nullptr);
+        return align(a, lane, find(a.bond, key), nullptr);
     if (flags & MAVBOND_STREAM_RESYNC)
-        return align(a, lane, e, "its numbering restarted");
+        return align(a, lane, find(a.bond, key), "its numbering restarted");
     if (after_outage(lane, s, a.t))
-        return align(a, lane, e, "an outage of 128 frames or more");
+        return align(a, lane, find(a.bond, key), "an outage of 128 frames or more");
 
     Verdict v;
     v.pos = a.link_pos + lane.offset;
@@ -842,8 +844,10 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
         // without a run of frames to show it). Placed anew, by identity first.
-        return align(a, lane, e, "another frame holds its position");
+        return align(a, lane, find(a.bond, key), "another frame holds its position");
     }
+    uint32_t e = find(a.bond, key);
+    v.entry = e;
     if (e == kNone)
         return v;
     const Entry& en = entries_[e];
@@ -922,12 +926,13 @@ void Dedup::note_position(const Arrival& a, Lane& lane, int64_t pos) {
     lane.last_t = a.t;
 }
 
-void Dedup::remember(const Arrival& a, Key key, int64_t pos) {
+void Dedup::remember(const Arrival& a, Key key, int64_t pos, uint32_t e) {
     // At the cap the oldest instance overall is forgotten first, which may be this key's last
-    // one: look the key up after making room.
-    if (ring_count_ == capacity_)
+    // one: look the key up again after making room.
+    if (ring_count_ == capacity_) {
         pop_front(true, a.t);
-    uint32_t e = find(a.bond, key);
+        e = find(a.bond, key);
+    }
     if (e == kNone)
         e = insert_entry(a.bond, key);
     Record r{};
@@ -1039,7 +1044,7 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
                 mem.duplicates++;
                 return MAVBOND_DROP;
             }
-            remember(a, key, v.pos);
+            remember(a, key, v.pos, v.entry);
         }
     }
     if (drop_stale_ && stale(bond, f)) {

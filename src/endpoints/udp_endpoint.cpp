@@ -19,11 +19,14 @@ DatagramBatch::DatagramBatch() : arena_(std::make_unique_for_overwrite<uint8_t[]
         msgs_[i].msg_hdr.msg_iovlen = 1;
         msgs_[i].msg_hdr.msg_name = &addrs_[i];
         msgs_[i].msg_hdr.msg_control = control_[i].data();
+        msgs_[i].msg_hdr.msg_controllen = kControl;
+        msgs_[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
     }
 }
 
 int DatagramBatch::receive(int fd, const EventLoop& loop) {
-    for (size_t i = 0; i < kCount; i++) {
+    // The kernel changed only the headers of the datagrams it gave last time.
+    for (size_t i = 0; i < count_; i++) {
         msgs_[i].msg_hdr.msg_namelen = sizeof(sockaddr_in);
         msgs_[i].msg_hdr.msg_controllen = kControl;
         msgs_[i].msg_hdr.msg_flags = 0;
