@@ -44,17 +44,6 @@ using std::chrono::seconds;
 constexpr uint64_t kMsNs = 1'000'000;
 constexpr uint64_t kSecondNs = 1'000'000'000;
 
-/// A minimal MAVLink v2 frame (header, empty HEARTBEAT-sized payload, dummy CRC): the plugin
-/// reads the fields from mavbond_frame, the bytes only have to exist.
-std::vector<uint8_t> raw_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid) {
-    std::vector<uint8_t> raw = {0xFD,   9,      0,
-                                0,      seq,    sysid,
-                                compid, static_cast<uint8_t>(msgid),
-                                static_cast<uint8_t>(msgid >> 8),
-                                static_cast<uint8_t>(msgid >> 16)};
-    raw.resize(raw.size() + 9 + 2, 0);
-    return raw;
-}
 
 /// One source sending on one link with its own numbering: seq counts up every frame; every
 /// `drop_every`th frame, or each frame with probability `loss`, is lost in the air (its seq is
@@ -101,7 +90,7 @@ protected:
 
     mavbond_verdict send(const std::string& link, uint8_t seq, uint32_t note_flags = 0,
                          uint8_t sysid = 1, uint8_t compid = 1, bool track = true) {
-        auto raw = raw_frame(seq, sysid, compid, 0);
+        auto raw = test_frame(seq, sysid, compid, 0);
         mavbond_frame f = host_.frame(raw);
         f.version = 2;
         f.seq = seq;
@@ -381,7 +370,7 @@ TEST_F(LinkSwitchTest, NoAllocationPerFrame) {
     create("loss_window: 1s");
     // The frames are built once, the positions tracked as the host does: only the plugin's
     // own work (ingress on both links, the timer's checks) is counted.
-    auto raw = raw_frame(0, 1, 1, 0);
+    auto raw = test_frame(0, 1, 1, 0);
     mavbond_frame f = host_.frame(raw);
     f.version = 2;
     f.sysid = f.compid = f.crc_checked = 1;

@@ -23,16 +23,6 @@ using mavbond_plugins::SeqTracker;
 using std::chrono::milliseconds;
 using std::chrono::seconds;
 
-/// A minimal MAVLink v2 frame: header, 9 payload bytes, dummy CRC (21 bytes on the wire).
-std::vector<uint8_t> raw_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid) {
-    std::vector<uint8_t> raw = {0xFD,   9,      0,
-                                0,      seq,    sysid,
-                                compid, static_cast<uint8_t>(msgid),
-                                static_cast<uint8_t>(msgid >> 8),
-                                static_cast<uint8_t>(msgid >> 16)};
-    raw.resize(raw.size() + 9 + 2, 0);
-    return raw;
-}
 
 /// Just enough of a JSON parser to prove the status text is well formed.
 class JsonCheck {
@@ -182,7 +172,7 @@ protected:
     mavbond_verdict send(const std::string& link, uint8_t seq, uint8_t sysid = 1,
                          uint8_t compid = 1, uint32_t flags = 0, int64_t skew_ns = 0,
                          const std::string& first = "") {
-        auto raw = raw_frame(seq, sysid, compid, 0);
+        auto raw = test_frame(seq, sysid, compid, 0);
         mavbond_frame f = host_.frame(raw, host_.link(link));  // positions tracked by the host
         mavbond_frame_notes notes{};
         notes.struct_size = sizeof notes;

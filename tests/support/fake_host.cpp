@@ -1,12 +1,22 @@
 #include "fake_host.h"
 
 #include <cerrno>
+#include <iterator>
 #include <sstream>
 
 #include "mavlink/frame.h"
 #include "mavlink/message_table.h"
 
 namespace mavbond {
+
+std::vector<uint8_t> test_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid) {
+    std::vector<uint8_t> raw(kHeaderLenV2 + 9 + kChecksumLen, 0);
+    const uint8_t header[] = {kMagicV2, 9, 0, 0, seq, sysid, compid,
+                              static_cast<uint8_t>(msgid), static_cast<uint8_t>(msgid >> 8),
+                              static_cast<uint8_t>(msgid >> 16)};
+    std::copy(std::begin(header), std::end(header), raw.begin());
+    return raw;
+}
 
 FakeHost::FakeHost() { host_.services = this; }
 

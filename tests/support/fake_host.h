@@ -15,6 +15,10 @@
 
 namespace mavbond {
 
+/// A minimal MAVLink v2 frame: the header, a 9-byte zero payload (HEARTBEAT's size) and a
+/// dummy CRC, 21 bytes. Plugins read the fields from mavbond_frame: the bytes only must exist.
+std::vector<uint8_t> test_frame(uint8_t seq, uint8_t sysid, uint8_t compid, uint32_t msgid = 0);
+
 class FakeHost : public HostServices {
 public:
     FakeHost();
