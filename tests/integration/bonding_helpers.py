@@ -76,18 +76,72 @@ class Gateway(Daemon):
 
 # --- link emulators -----------------------------------------------------------------------
 
-class Emu:
+class _Linkemu:
+    """A linkemu process: started until its banner says it listens, ended with SIGTERM (its
+    counters are its last JSON lines on stdout), or killed."""
+
+    def __init__(self, workdir: Path, name: str, banner: bytes):
+        self.name = name
+        self.out_path = workdir / f"linkemu-{name}.out"
+        self.err_path = workdir / f"linkemu-{name}.err"
+        self._banner = banner
+        self.args: List[str] = []
+        self.proc: Optional[subprocess.Popen] = None
+        self.t_start: Optional[float] = None
+
+    def start(self, timeout: float = 10.0):
+        """Starts the process; returns once it listens (its clock starts then)."""
+        self._out = open(self.out_path, "wb")
+        self._err = open(self.err_path, "wb")
+        self.proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=self._out,
+                                     stderr=self._err)
+        deadline = time.monotonic() + timeout
+        while self._banner not in self.err_path.read_bytes():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"linkemu {self.name} did not start: "
+                                     f"{self.err_path.read_text(errors='replace')}")
+            time.sleep(0.01)
+        self.t_start = time.monotonic()
+        return self
+
+    def _terminate(self) -> List[dict]:
+        """SIGTERM (once), and the JSON lines it printed."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc is not None and not self._out.closed:
+            self._out.close()
+            self._err.close()
+        return [json.loads(l) for l in self.out_path.read_text().splitlines() if l.startswith("{")]
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def _records(path: Optional[Path], direction: str) -> List[dict]:
+    """The JSON lines of a drop or send log, of one direction."""
+    if path is None or not path.exists():
+        return []
+    return [r for r in (json.loads(l) for l in path.read_text().splitlines() if l)
+            if r["direction"] == direction]
+
+
+class Emu(_Linkemu):
     """One linkemu process between `listen` (side A sends here) and `forward` (side B).
     Drops are logged to a file; counters come from its stdout on stop()."""
 
     def __init__(self, workdir: Path, name: str, listen_port: int, forward_port: int,
                  seed: int = 1, **opts):
-        self.name = name
+        super().__init__(workdir, name, b"listening on")
         self.listen_port = listen_port
         self.forward_port = forward_port
         self.drops_path = workdir / f"linkemu-{name}-drops.jsonl"
-        self.out_path = workdir / f"linkemu-{name}.out"
-        self.err_path = workdir / f"linkemu-{name}.err"
         args = [sys.executable, str(LINKEMU), "--listen", f"{HOST}:{listen_port}",
                 "--forward", f"{HOST}:{forward_port}", "--seed", str(seed),
                 "--log-drops", str(self.drops_path)]
@@ -99,54 +153,19 @@ class Emu:
                 else:
                     args += [flag, str(x)]
         self.args = args
-        self.proc: Optional[subprocess.Popen] = None
         self._counters: Optional[Dict[str, dict]] = None
-        self.t_start: Optional[float] = None
-
-    def start(self, timeout: float = 5.0) -> "Emu":
-        self._out = open(self.out_path, "wb")
-        self._err = open(self.err_path, "wb")
-        self.proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=self._out,
-                                     stderr=self._err)
-        deadline = time.monotonic() + timeout
-        while b"listening on" not in self.err_path.read_bytes():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"linkemu {self.name} did not start: "
-                                     f"{self.err_path.read_text(errors='replace')}")
-            time.sleep(0.01)
-        self.t_start = time.monotonic()
-        return self
 
     def stop(self) -> Dict[str, dict]:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc is not None:
-            self._out.close()
-            self._err.close()
+        rows = self._terminate()
         if self._counters is None:
-            rows = [json.loads(l) for l in self.out_path.read_text().splitlines()
-                    if l.startswith("{")]
             self._counters = {r["direction"]: r for r in rows[-2:]}
         return self._counters
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
 
     def counters(self) -> Dict[str, dict]:
         return self.stop() if self._counters is None else self._counters
 
     def drops(self, direction: str = "up") -> List[dict]:
-        if not self.drops_path.exists():
-            return []
-        return [r for r in (json.loads(l) for l in self.drops_path.read_text().splitlines() if l)
-                if r["direction"] == direction]
+        return _records(self.drops_path, direction)
 
     def dropped(self, direction: str = "up") -> set:
         """Indices of the datagrams this link did not forward (corrupted ones are forwarded)."""
@@ -334,7 +353,7 @@ class Ticker:
 
 # --- a group of links in one emulator process -----------------------------------------------
 
-class EmuGroup:
+class EmuGroup(_Linkemu):
     """Several links in ONE linkemu process (`linkemu.py --group`): one loop and one heap of
     due sends, so when two links' datagrams are due, every forward address gets the earlier
     one first. Each link: a dict with name, listen_port, forward_ports (a port or a list: a
@@ -344,10 +363,8 @@ class EmuGroup:
 
     def __init__(self, workdir: Path, name: str, links: Sequence[dict], duration=None,
                  log_sends: bool = False):
-        self.name = name
+        super().__init__(workdir, name, b"links listening")
         self.spec_path = workdir / f"linkemu-{name}-group.json"
-        self.out_path = workdir / f"linkemu-{name}.out"
-        self.err_path = workdir / f"linkemu-{name}.err"
         self.drops_paths: Dict[str, Path] = {}
         self.sends_paths: Dict[str, Path] = {}
         spec = []
@@ -370,50 +387,16 @@ class EmuGroup:
         self.args = [sys.executable, str(LINKEMU), "--group", str(self.spec_path)]
         if duration is not None:
             self.args += ["--duration", str(duration)]
-        self.proc: Optional[subprocess.Popen] = None
         self._counters: Optional[Dict[str, Dict[str, dict]]] = None
-        self.t_start: Optional[float] = None
-
-    def start(self, timeout: float = 10.0) -> "EmuGroup":
-        """Starts the process; returns once every link listens (its clock starts then)."""
-        self._out = open(self.out_path, "wb")
-        self._err = open(self.err_path, "wb")
-        self.proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=self._out,
-                                     stderr=self._err)
-        deadline = time.monotonic() + timeout
-        while b"links listening" not in self.err_path.read_bytes():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"linkemu group {self.name} did not start: "
-                                     f"{self.err_path.read_text(errors='replace')}")
-            time.sleep(0.01)
-        self.t_start = time.monotonic()
-        return self
 
     def stop(self) -> Dict[str, Dict[str, dict]]:
         """SIGTERM; {link: {"up": counters, "down": counters}} from its last lines."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc is not None:
-            self._out.close()
-            self._err.close()
+        rows = self._terminate()
         if self._counters is None:
-            rows = [json.loads(l) for l in self.out_path.read_text().splitlines()
-                    if l.startswith("{")]
-            last = rows[-2 * len(self.link_names):]
             self._counters = {}
-            for r in last:
+            for r in rows[-2 * len(self.link_names):]:
                 self._counters.setdefault(r["link"], {})[r["direction"]] = r
         return self._counters
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
 
     def counters_now(self, timeout: float = 10.0) -> Dict[str, Dict[str, dict]]:
         """{link: {"up", "down"}} as of now, while it runs (SIGUSR1: it prints them and
@@ -439,14 +422,8 @@ class EmuGroup:
         """{"up": .., "down": ..} of one link (stops the process the first time)."""
         return (self.stop() if self._counters is None else self._counters)[name]
 
-    def _records(self, path: Optional[Path], direction: str) -> List[dict]:
-        if path is None or not path.exists():
-            return []
-        return [r for r in (json.loads(l) for l in path.read_text().splitlines() if l)
-                if r["direction"] == direction]
-
     def drops(self, name: str, direction: str = "up") -> List[dict]:
-        return self._records(self.drops_paths[name], direction)
+        return _records(self.drops_paths[name], direction)
 
     def dropped(self, name: str, direction: str = "up") -> set:
         """Indices of the datagrams this link did not forward (corrupted ones are forwarded)."""
@@ -457,7 +434,7 @@ class EmuGroup:
 
     def sends(self, name: str, direction: str = "up") -> List[dict]:
         """What the link sent (log_sends=True), in send order: written at stop or SIGUSR1."""
-        return self._records(self.sends_paths.get(name), direction)
+        return _records(self.sends_paths.get(name), direction)
 
     def loss_rate(self, name: str, direction: str = "up") -> float:
         c = self.counters(name)[direction]
