@@ -5,35 +5,20 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cstdlib>
 #include <functional>
 #include <map>
-#include <new>
 #include <random>
 #include <regex>
 #include <string>
 #include <vector>
 
+#include "allocations.h"
 #include "fake_host.h"
 #include "filters/stream_positions.h"
 #include "mavbond/plugin.h"
 
 extern "C" const mavbond_plugin_descriptor* mavbond_plugin_entry(void);
-
-// Every allocation in this binary is counted, so a test can show the frame path makes none.
-// (GCC takes the malloc/free of replaced global operators for a mismatch once it inlines them.)
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-static std::atomic<uint64_t> g_allocations{0};
-
-void* operator new(size_t n) {
-    g_allocations++;
-    if (void* p = std::malloc(n ? n : 1))
-        return p;
-    throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, size_t) noexcept { std::free(p); }
 
 namespace mavbond {
 namespace {
@@ -396,9 +381,9 @@ TEST_F(LinkSwitchTest, NoAllocationPerFrame) {
     };
     frames(0, 1000);  // sources learned, the loss switch to lte made (and logged) once judged
     ASSERT_EQ(active(), "lte");
-    uint64_t before = g_allocations;
+    uint64_t before = allocations();
     frames(1000, 11000);  // 50 s, 20,000 frames, 1,000 timer ticks
-    EXPECT_EQ(g_allocations - before, 0u);
+    EXPECT_EQ(allocations() - before, 0u);
     EXPECT_EQ(switch_lines(), 1u) << testing::PrintToString(host_.logs);
 }
 

@@ -44,7 +44,7 @@ show() {    # show "what" command...: the same, with the command's output either
 }
 unexpected_files() {   # files (not directories) of the package outside its own places
     dpkg -L mavbond | while read -r f; do [ -d "$f" ] || echo "$f"; done |
-        grep -v -E "^/(etc/mavbond/|lib/systemd/system/mavbond\.service$|usr/bin/mavbond(ctl)?$|usr/lib/$MULTIARCH/mavbond/plugins/[a-z]+\.so$|usr/share/doc/mavbond/|usr/share/man/man[158]/mavbond)" || true
+        grep -v -E "^/(etc/mavbond/|lib/systemd/system/mavbond\.service$|usr/bin/mavbond(ctl)?$|usr/lib/$MULTIARCH/mavbond/plugins/[a-z]+\.so$|usr/share/doc/mavbond/|usr/share/man/man[158]/mavbond|usr/lib/sysctl\.d/60-mavbond\.conf$)" || true
 }
 verify_unit() {   # systemd-analyze verify prints nothing for a clean unit
     local out
@@ -128,6 +128,14 @@ for f in $UNIT /usr/share/doc/mavbond/examples/air-side.yaml \
     check "$f" test -f "$f"
 done
 check "man -w mavbond.yaml" man -w 5 mavbond.yaml
+check "/usr/lib/sysctl.d/60-mavbond.conf" test -f /usr/lib/sysctl.d/60-mavbond.conf
+rmem_raised() {   # postinst applied the file, or this machine lets nobody set the limit (a container)
+    local want have
+    want=$(sed -n 's/^net.core.rmem_max *= *//p' /usr/lib/sysctl.d/60-mavbond.conf)
+    have=$(sysctl -n net.core.rmem_max)
+    [ "$have" -ge "$want" ] || ! sysctl -q -w "net.core.rmem_max=$have" 2>/dev/null
+}
+check "postinst raised net.core.rmem_max to the file's value" rmem_raised
 check "no file outside the expected places" test -z "$(unexpected_files)"
 check "the shipped config opens no serial port" sh -c "! grep -E '^[^#]*type: *uart' $CONF"
 check "postinst enabled the unit" test -L /etc/systemd/system/multi-user.target.wants/mavbond.service
