@@ -136,6 +136,19 @@ rmem_raised() {   # postinst applied the file, or this machine lets nobody set t
     [ "$have" -ge "$want" ] || ! sysctl -q -w "net.core.rmem_max=$have" 2>/dev/null
 }
 check "postinst raised net.core.rmem_max to the file's value" rmem_raised
+unit_programs_provided() {   # every program the unit runs comes from mavbond or a dependency
+    local deps prog owner ok=0
+    deps=$(dpkg-query -W -f='${Depends}' mavbond)
+    for prog in $(sed -n 's/^Exec[A-Za-z]*=[-@!+]*\(\/[^ ]*\).*/\1/p' "$UNIT" | sort -u); do
+        owner=$(dpkg -S "$prog" 2>/dev/null | head -1 | cut -d: -f1)
+        if [ -z "$owner" ] || { [ "$owner" != mavbond ] && ! echo "$deps" | grep -qw -- "$owner"; }; then
+            echo "$prog: from '${owner:-no package}', not a dependency of mavbond"; ok=1
+        else
+            echo "$prog: $owner"
+        fi
+    done
+    return $ok
+}
 check "no file outside the expected places" test -z "$(unexpected_files)"
 check "the shipped config opens no serial port" sh -c "! grep -E '^[^#]*type: *uart' $CONF"
 check "postinst enabled the unit" test -L /etc/systemd/system/multi-user.target.wants/mavbond.service
@@ -143,6 +156,7 @@ check "mavbond --version" /usr/bin/mavbond --version
 
 say "systemd unit"
 show "systemd-analyze verify $UNIT (no output)" verify_unit
+show "the programs the unit runs come with mavbond or its dependencies" unit_programs_provided
 exposure=$(systemd-analyze security --offline=yes "$UNIT" 2>/dev/null | sed -n 's/.*Overall exposure level for mavbond.service: \([0-9.]*\).*/\1/p')
 check "systemd-analyze security: exposure $exposure (<= 2.0)" awk -v e="$exposure" 'BEGIN { exit !(e != "" && e <= 2.0) }'
 for k in 'DynamicUser=yes' 'SupplementaryGroups=dialout' "ExecStartPre=/usr/bin/mavbond --check-config -c $CONF" \
