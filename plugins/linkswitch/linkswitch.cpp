@@ -31,9 +31,12 @@
 
 #include "json_out.h"
 #include "mavbond/filter.hpp"
+#include "mavbond/source_table.hpp"
 
 namespace {
 
+using mavbond::History128;
+using mavbond::SourceTable;
 using mavbond_plugins::JsonOut;
 
 constexpr uint64_t kMs = 1'000'000;
@@ -173,28 +176,27 @@ public:
     /// `restart`: the source's numbering restarted (the host saw it), its history is void.
     Seen admit(uint8_t sysid, uint8_t compid, uint8_t seq, uint64_t now, uint64_t horizon,
                bool restart) {
-        Source* s = find(sysid, compid);
+        Source* s = sources_.find(sysid, compid);
         if (!s)
             return Seen::kUntracked;
         if (!s->delivered_any || restart || elapsed(now, s->last_delivery_ns) >= horizon) {
             s->delivered_any = true;
             s->newest = seq;
-            s->behind = {0, 0};
+            s->behind.reset();
         } else {
             auto ahead = static_cast<uint8_t>(seq - s->newest);
             if (ahead == 0)
                 return Seen::kDelivered;
-            if (ahead < 128) {
-                shift(*s, ahead);
+            if (ahead < 128) {  // the old newest becomes bit ahead - 1
+                s->behind.shift(ahead);
+                s->behind.set(ahead - 1u);
                 s->newest = seq;
             } else {
                 // 1..128 behind the newest: bit (behind - 1).
                 unsigned bit = static_cast<uint8_t>(s->newest - seq) - 1u;
-                uint64_t& word = s->behind[bit / 64];
-                uint64_t mask = uint64_t{1} << (bit % 64);
-                if (word & mask)
+                if (s->behind.has(bit))
                     return Seen::kDelivered;
-                word |= mask;
+                s->behind.set(bit);
             }
         }
         s->last_delivery_ns = now;
@@ -203,50 +205,13 @@ public:
 
 private:
     struct Source {
-        uint16_t key = 0;
-        bool used = false;
         bool delivered_any = false;
         uint8_t newest = 0;
-        std::array<uint64_t, 2> behind{};  // bit i: newest - 1 - i was delivered
+        History128 behind;  // bit i: newest - 1 - i was delivered
         uint64_t last_delivery_ns = 0;
     };
 
-    /// The newest moves `ahead` (1..127) forward; the old newest becomes bit ahead - 1.
-    static void shift(Source& s, unsigned ahead) {
-        uint64_t lo = s.behind[0], hi = s.behind[1];
-        if (ahead >= 64) {
-            hi = lo << (ahead - 64);
-            lo = 0;
-        } else {
-            hi = hi << ahead | lo >> (64 - ahead);
-            lo = lo << ahead;
-        }
-        unsigned bit = ahead - 1;
-        (bit < 64 ? lo : hi) |= uint64_t{1} << (bit % 64);
-        s.behind = {lo, hi};
-    }
-
-    Source* find(uint8_t sysid, uint8_t compid) {
-        auto key = static_cast<uint16_t>(sysid << 8 | compid);
-        uint32_t i = (key * 40503u >> 4) % kHistorySources;
-        for (uint32_t n = 0; n < kHistorySources; n++, i = (i + 1) % kHistorySources) {
-            Source& s = sources_[i];
-            if (s.used && s.key == key)
-                return &s;
-            if (!s.used) {
-                if (used_ * 4 >= kHistorySources * 3)  // keeps probe runs short
-                    return nullptr;
-                s.used = true;
-                s.key = key;
-                used_++;
-                return &s;
-            }
-        }
-        return nullptr;
-    }
-
-    std::array<Source, kHistorySources> sources_{};
-    uint32_t used_ = 0;
+    SourceTable<Source, kHistorySources> sources_;
 };
 
 enum Reason : size_t { kSilence, kLoss, kFailback, kRemoved, kReasons };

@@ -11,10 +11,10 @@
 // position moves on past it (flagged MAVBOND_STREAM_RESYNC), never back.
 #pragma once
 
-#include <array>
 #include <cstdint>
 
 #include "mavbond/plugin.h"
+#include "mavbond/source_table.hpp"
 
 namespace mavbond {
 
@@ -40,17 +40,12 @@ public:
 
 private:
     struct Source {
-        uint16_t key = 0;
-        bool used = false;
         bool started = false;
         uint8_t odd_run = 0;  // frames in a row that were repeats or far behind
-        uint64_t seen[2] = {};  // bit i (of 128): position last - i arrived
+        History128 seen;      // bit i: position last - i arrived
         int64_t last = 0;     // the highest position so far
     };
-    Source* find(uint8_t sysid, uint8_t compid);
-
-    std::array<Source, kCapacity> sources_{};
-    uint32_t used_ = 0;
+    SourceTable<Source, kCapacity> sources_;
 };
 
 }  // namespace mavbond
