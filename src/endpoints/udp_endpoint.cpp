@@ -36,8 +36,11 @@ int DatagramBatch::receive(int fd, const EventLoop& loop) {
     // Found the socket empty (or short of a full batch): everything that arrived before the
     // read was read, so before the round began too.
     drained_at_ = count_ < kCount ? loop.now() : TimePoint{};
-    for (size_t i = 0; i < count_; i++)
-        read_control(i, loop.wall_minus_monotonic_ns());
+    if (count_ > 0) {
+        int64_t wall_minus_monotonic = loop.wall_minus_monotonic_ns();
+        for (size_t i = 0; i < count_; i++)
+            read_control(i, wall_minus_monotonic);
+    }
     if (n < 0)
         return errno == EAGAIN || errno == EWOULDBLOCK ? 0 : -errno;
     return n;
