@@ -49,8 +49,14 @@ std::string fetch(const std::string& path) {
     std::memcpy(addr.sun_path, path.c_str(), path.size() + 1);
     int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0 || connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) < 0) {
-        fprintf(stderr, "mavbondctl: cannot connect to %s: %s (is mavbond running with "
-                        "status_socket set?)\n", path.c_str(), strerror(errno));
+        int err = errno;
+        if (err == EACCES)
+            fprintf(stderr, "mavbondctl: cannot connect to %s: %s (the socket's group may read "
+                            "it: as installed, group mavbond; sudo adduser $USER mavbond, then "
+                            "log in again)\n", path.c_str(), strerror(err));
+        else
+            fprintf(stderr, "mavbondctl: cannot connect to %s: %s (is mavbond running with "
+                            "status_socket set?)\n", path.c_str(), strerror(err));
         if (fd >= 0)
             close(fd);
         return "";

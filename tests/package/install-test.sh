@@ -8,7 +8,8 @@
 # It leaves the machine as it found it: the package is purged on any exit. systemd is not
 # needed (postinst only enables the unit when systemd is not running); the unit is checked
 # with systemd-analyze verify and security, and the daemon is run the way the unit runs it:
-# --check-config first, then as an unprivileged user in the dialout group. Exit 0: all passed.
+# --check-config first, then as the package's system user mavbond in the dialout group. A user
+# in group mavbond reads its status socket; one outside is refused. Exit 0: all passed.
 set -euo pipefail
 
 DEB=$(realpath "${1:?usage: install-test.sh PACKAGE.deb}")
@@ -17,7 +18,8 @@ MULTIARCH=$(dpkg-architecture -qDEB_HOST_MULTIARCH)
 PLUGINDIR=/usr/lib/$MULTIARCH/mavbond/plugins
 CONF=/etc/mavbond/mavbond.yaml
 UNIT=/lib/systemd/system/mavbond.service
-RUN_AS=(setpriv --reuid=nobody --regid=nogroup --groups=dialout --inh-caps=-all --no-new-privs)
+RUN_AS=(setpriv --reuid=mavbond --regid=mavbond --groups=dialout --inh-caps=-all --no-new-privs)
+READER=mavbond-install-test   # a login user made for the status socket checks, then removed
 APT=(apt-get -q -y --no-install-recommends -o DPkg::Lock::Timeout=600)
 export DEBIAN_FRONTEND=noninteractive
 WORK=$(mktemp -d /tmp/mavbond-install-test.XXXXXX)
@@ -83,7 +85,15 @@ cleanup() {
     stop_daemon
     if known; then "${APT[@]}" purge mavbond >/dev/null 2>&1 || dpkg --purge mavbond >/dev/null 2>&1 || true; fi
     rm -rf /run/mavbond "$WORK"
+    if getent passwd "$READER" >/dev/null; then userdel "$READER" 2>/dev/null || true; fi
+    # The system user stays after a purge (Debian practice: files it owned may remain), but
+    # this machine had none before the test.
+    if [ "$HAD_USER" = no ] && getent passwd mavbond >/dev/null; then
+        userdel mavbond 2>/dev/null || true
+        groupdel mavbond 2>/dev/null || true
+    fi
 }
+HAD_USER=$(getent passwd mavbond >/dev/null && echo yes || echo no)
 trap cleanup EXIT
 
 # Starts the installed daemon the way the unit does, waits until it logs "running".
@@ -149,6 +159,15 @@ unit_programs_provided() {   # every program the unit runs comes from mavbond or
     done
     return $ok
 }
+system_user_ok() {   # postinst's user: a system account, no login, group mavbond
+    local entry
+    entry=$(getent passwd mavbond) || { echo "no user mavbond"; return 1; }
+    echo "$entry"
+    getent group mavbond
+    [ "$(id -u mavbond)" -lt 1000 ] && [ "$(id -gn mavbond)" = mavbond ] &&
+        case "$entry" in *:/nonexistent:/usr/sbin/nologin) ;; *) return 1 ;; esac
+}
+show "postinst created the system user and group mavbond" system_user_ok
 check "no file outside the expected places" test -z "$(unexpected_files)"
 check "the shipped config opens no serial port" sh -c "! grep -E '^[^#]*type: *uart' $CONF"
 check "postinst enabled the unit" test -L /etc/systemd/system/multi-user.target.wants/mavbond.service
@@ -166,13 +185,29 @@ for k in 'DynamicUser=yes' 'SupplementaryGroups=dialout' "ExecStartPre=/usr/bin/
 done
 
 say "installed daemon, installed config ($CONF)"
-mkdir -p /run/mavbond && chown nobody:nogroup /run/mavbond   # what RuntimeDirectory= does
+mkdir -p /run/mavbond && chown mavbond:mavbond /run/mavbond   # what RuntimeDirectory= does
+useradd --no-create-home --shell /usr/sbin/nologin "$READER"
+status_as() {   # status_as USER: mavbondctl status as USER with its groups from /etc/group
+    setpriv --reuid="$1" --regid="$(id -g "$1")" --init-groups --inh-caps=-all mavbondctl status
+}
+refused_as() {   # refused_as USER: mavbondctl status fails and says which group would do
+    local out
+    out=$(status_as "$1" 2>&1) && { echo "$out"; return 1; }
+    echo "$out"
+    grep -q "adduser" <<<"$out"
+}
 if port_free 14550 && port_free 14540; then
     if start_daemon "$CONF"; then
         show "route a frame between the shipped endpoints (UDP 14550 <-> 14540)" \
             python3 "$HERE/route_check.py" pair 14550 14540
         show "mavbondctl status" mavbondctl status
         show "mavbondctl status --json: the frames were counted" counters_ok
+        show "status socket: mode 0660, group mavbond" stat -c '%a %U:%G %n' /run/mavbond/status.sock
+        check "status socket: mode 0660, group mavbond (as checked)" \
+            test "$(stat -c '%a %G' /run/mavbond/status.sock)" = "660 mavbond"
+        show "a user outside group mavbond is refused, with the group named" refused_as "$READER"
+        usermod -a -G mavbond "$READER"
+        show "a user in group mavbond runs mavbondctl status without sudo" status_as "$READER"
         stop_daemon
         check "clean stop on SIGTERM (exit $DAEMON_RC)" test "$DAEMON_RC" -eq 0
         check "status socket removed at exit" test ! -e /run/mavbond/status.sock
