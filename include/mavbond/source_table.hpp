@@ -33,7 +33,6 @@ public:
         }
         return nullptr;
     }
-    void clear() { *this = SourceTable(); }
 
 private:
     struct Slot {
