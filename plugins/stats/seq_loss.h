@@ -1,5 +1,5 @@
-// Loss from MAVLink sequence numbers, per source (sysid, compid). Shared by stats and linkswitch
-// (header only: each plugin .so carries its own copy, nothing crosses the plugin boundary).
+// Loss from MAVLink sequence numbers, per source (sysid, compid): stats counts a bond's
+// delivered stream with it (each link's loss comes from the host's stream positions).
 //
 // MAVLink has one 8-bit sequence counter per source, so loss is only measurable per source and
 // only modulo 256: a forward step of g (1 <= g < 128) means g - 1 frames were lost; anything
@@ -7,8 +7,9 @@
 // fills a gap already counted as lost gives that loss back, so reordering never inflates loss.
 #pragma once
 
-#include <array>
 #include <cstdint>
+
+#include "mavbond/source_table.hpp"
 
 namespace mavbond_plugins {
 
@@ -69,51 +70,18 @@ private:
     bool started_ = false;
 };
 
-/// Sequence trackers for the sources seen on one stream: a fixed open-addressed table, so a
-/// frame never allocates. A stream rarely has more than a handful of sources (autopilot,
-/// gimbal, companion, GCS); sources beyond the capacity are counted as received, never lost.
-class SourceTable {
+/// Sequence trackers for the sources seen on one stream, in a fixed table so a frame never
+/// allocates. A stream rarely has more than a handful of sources (autopilot, gimbal, companion,
+/// GCS); sources beyond the table are counted as received, never lost.
+class StreamLoss {
 public:
     SeqStep step(uint8_t sysid, uint8_t compid, uint8_t seq) {
-        SeqTracker* t = find(sysid, compid);
+        SeqTracker* t = trackers_.find(sysid, compid);
         return t ? t->step(seq) : SeqStep{1, 0};
-    }
-    uint32_t size() const { return used_; }
-    /// Forgets every source (O(capacity): for rare events such as a link coming back).
-    void clear() {
-        slots_ = {};
-        used_ = 0;
     }
 
 private:
-    static constexpr uint32_t kCapacity = 64;
-    struct Slot {
-        uint16_t key = 0;
-        bool used = false;
-        SeqTracker tracker;
-    };
-
-    SeqTracker* find(uint8_t sysid, uint8_t compid) {
-        auto key = static_cast<uint16_t>(sysid << 8 | compid);
-        uint32_t i = (key * 40503u >> 4) % kCapacity;  // spread neighbouring compids
-        for (uint32_t n = 0; n < kCapacity; n++, i = (i + 1) % kCapacity) {
-            Slot& s = slots_[i];
-            if (s.used && s.key == key)
-                return &s.tracker;
-            if (!s.used) {
-                if (used_ * 4 >= kCapacity * 3)  // keep probes short
-                    return nullptr;
-                s.used = true;
-                s.key = key;
-                used_++;
-                return &s.tracker;
-            }
-        }
-        return nullptr;
-    }
-
-    std::array<Slot, kCapacity> slots_{};
-    uint32_t used_ = 0;
+    mavbond::SourceTable<SeqTracker, 64> trackers_;
 };
 
 /// Loss as a fraction of expected frames; negative totals (late frames filling gaps counted

@@ -25,7 +25,7 @@ namespace {
 using mavbond_plugins::JsonOut;
 using mavbond_plugins::loss_fraction;
 using mavbond_plugins::SeqStep;
-using mavbond_plugins::SourceTable;
+using mavbond_plugins::StreamLoss;
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 constexpr double kNsPerMs = 1e6;
@@ -114,7 +114,7 @@ struct BondStats {
     uint32_t width = 0;             // skew matrix side: positions 0..width-1
     std::vector<Skew> skew;         // [first copy's member position * width + late copy's]
     BondTotals total, prev, interval;
-    SourceTable delivered_sources;
+    StreamLoss delivered_sources;
     mavbond_bond_state state{};
 };
 
