@@ -50,13 +50,12 @@ std::string fetch(const std::string& path) {
     int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0 || connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) < 0) {
         int err = errno;
-        if (err == EACCES)
-            fprintf(stderr, "mavbondctl: cannot connect to %s: %s (the socket's group may read "
-                            "it: as installed, group mavbond; sudo adduser $USER mavbond, then "
-                            "log in again)\n", path.c_str(), strerror(err));
-        else
-            fprintf(stderr, "mavbondctl: cannot connect to %s: %s (is mavbond running with "
-                            "status_socket set?)\n", path.c_str(), strerror(err));
+        const char* hint = err == EACCES
+            ? "the socket's group may read it: as installed, group mavbond; sudo adduser $USER "
+              "mavbond, then log in again"
+            : "is mavbond running with status_socket set?";
+        fprintf(stderr, "mavbondctl: cannot connect to %s: %s (%s)\n", path.c_str(), strerror(err),
+                hint);
         if (fd >= 0)
             close(fd);
         return "";
