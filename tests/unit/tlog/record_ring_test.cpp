@@ -62,16 +62,17 @@ TEST(RecordRing, TwoThreadsLoseAndReorderNothing) {
     std::atomic<bool> producer_done{false};
     consumer_thread = std::thread([&] {
         std::vector<uint8_t> buf(RecordRing::kMaxRecord);
-        // Bounded: stops once the producer is done and the ring is empty.
+        // Bounded: stops once the producer is done and the ring is empty. `done` is read once,
+        // before the pop: read again after an empty pop, it could turn true between the two
+        // reads and end the loop with the producer's last records still in the ring.
         while (true) {
+            bool done = producer_done.load();
             size_t n = ring.pop(buf.data());
             if (n == 0) {
-                if (producer_done.load())
-                    n = ring.pop(buf.data());
-                if (n == 0 && producer_done.load())
+                if (done)
                     break;
-                if (n == 0)
-                    continue;
+                std::this_thread::yield();
+                continue;
             }
             uint32_t v;
             std::memcpy(&v, buf.data(), sizeof v);
