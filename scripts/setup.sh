@@ -9,6 +9,8 @@ VENV=${MAVBOND_VENV:-$ROOT/.venv}
 DEB_PACKAGES=(g++ meson ninja-build pkgconf libyaml-cpp-dev libboost-dev libgtest-dev libgmock-dev
               python3 python3-venv ca-certificates procps iproute2
               clang-14 clang libclang-rt-14-dev)   # scripts/fuzz: libFuzzer
+# A script that needs more sets TEST_DEB_PACKAGES before sourcing this file (scripts/test).
+DEB_PACKAGES+=(${TEST_DEB_PACKAGES[@]+"${TEST_DEB_PACKAGES[@]}"})
 # One line: scripts/package reads it. matplotlib draws scripts/compare's plots; prometheus-client
 # parses /metrics in tests/integration/test_metrics.py.
 PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 matplotlib==3.10.8 prometheus-client==0.26.0)

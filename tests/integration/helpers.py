@@ -72,8 +72,11 @@ def uart(name: str, device: str, baud: int = 921600, **kw) -> dict:
 # (net.ipv4.ip_local_port_range, 32768-60999 by default): a port the kernel hands out for an
 # implicit bind (a client socket, an emulator's source port) can never be one of them, so
 # a port chosen here cannot be taken between the choice and the bind. Each process starts at
-# its own place in the range and walks on.
-_PORT_LOW, _PORT_HIGH = 10000, 32767
+# its own place in the range and walks on. MAVBOND_TEST_PORTS=LOW-HIGH narrows the range, so
+# that two test runs at once (scripts/test runs the sanitizer build's beside the plain one)
+# never choose the same port.
+_PORT_LOW, _PORT_HIGH = (int(p) for p in os.environ.get("MAVBOND_TEST_PORTS", "10000-32767")
+                         .split("-"))
 _next_port = _PORT_LOW + (os.getpid() * 7919) % (_PORT_HIGH - _PORT_LOW)
 
 

@@ -2,8 +2,11 @@
 # Installs the mavbond .deb for this machine's architecture (as root), checks every file lands
 # where it should, runs the installed daemon with the installed config and with the installed
 # plugins, edits the conffile, reinstalls (the edit survives) and purges (everything goes).
+# Given an apt repository (scripts/apt-repo) too, it then installs from it the way a user does
+# (its key, one sources line), edits the conffile, upgrades to a newer version added to a copy
+# of the repository (the same package repacked with a higher version), and purges.
 #
-#   tests/package/install-test.sh build-deb/mavbond_VERSION_amd64.deb
+#   tests/package/install-test.sh build-deb/mavbond_VERSION_amd64.deb [REPOSITORY]
 #
 # It leaves the machine as it found it: the package is purged on any exit. systemd is not
 # needed (postinst only enables the unit when systemd is not running); the unit is checked
@@ -12,7 +15,8 @@
 # in group mavbond reads its status socket; one outside is refused. Exit 0: all passed.
 set -euo pipefail
 
-DEB=$(realpath "${1:?usage: install-test.sh PACKAGE.deb}")
+DEB=$(realpath "${1:?usage: install-test.sh PACKAGE.deb [REPOSITORY]}")
+REPO=${2:+$(realpath "$2")}
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 MULTIARCH=$(dpkg-architecture -qDEB_HOST_MULTIARCH)
 PLUGINDIR=/usr/lib/$MULTIARCH/mavbond/plugins
@@ -25,25 +29,12 @@ export DEBIAN_FRONTEND=noninteractive
 WORK=$(mktemp -d /tmp/mavbond-install-test.XXXXXX)
 chmod 755 "$WORK"
 DAEMON_PID=
-PASSED=0
-FAILED=0
+source "$HERE/checks.sh"
 
 [ "$(id -u)" -eq 0 ] || { echo "install-test: needs root (it installs the package)" >&2; exit 1; }
 [ "$(dpkg-deb -f "$DEB" Architecture)" = "$(dpkg --print-architecture)" ] ||
     { echo "install-test: $DEB is not for $(dpkg --print-architecture)" >&2; exit 1; }
 
-say() { printf -- '--- %s\n' "$*"; }
-ok() { printf 'ok    %s\n' "$*"; PASSED=$((PASSED + 1)); }
-fail() { printf 'FAIL  %s\n' "$*"; FAILED=$((FAILED + 1)); }
-check() {   # check "what" command...: one line, and the command's output when it fails
-    local what=$1; shift
-    if "$@" >"$WORK/out" 2>&1; then ok "$what"; else fail "$what"; sed 's/^/      /' "$WORK/out"; fi
-}
-show() {    # show "what" command...: the same, with the command's output either way
-    local what=$1; shift
-    if "$@" >"$WORK/out" 2>&1; then ok "$what"; else fail "$what"; fi
-    sed 's/^/      /' "$WORK/out"
-}
 unexpected_files() {   # files (not directories) of the package outside its own places
     dpkg -L mavbond | while read -r f; do [ -d "$f" ] || echo "$f"; done |
         grep -v -E "^/(etc/mavbond/|lib/systemd/system/mavbond\.service$|usr/bin/mavbond(ctl)?$|usr/lib/$MULTIARCH/mavbond/plugins/[a-z]+\.so$|usr/share/doc/mavbond/|usr/share/man/man[158]/mavbond|usr/lib/sysctl\.d/60-mavbond\.conf$)" || true
@@ -84,6 +75,7 @@ stop_daemon() {
 cleanup() {
     stop_daemon
     if known; then "${APT[@]}" purge mavbond >/dev/null 2>&1 || dpkg --purge mavbond >/dev/null 2>&1 || true; fi
+    rm -f "$REPO_LIST" /var/lib/apt/lists/*"$(basename "$WORK")"*
     rm -rf /run/mavbond "$WORK"
     if getent passwd "$READER" >/dev/null; then userdel "$READER" 2>/dev/null || true; fi
     # The system user stays after a purge (Debian practice: files it owned may remain), but
@@ -94,6 +86,7 @@ cleanup() {
     fi
 }
 HAD_USER=$(getent passwd mavbond >/dev/null && echo yes || echo no)
+REPO_LIST=/etc/apt/sources.list.d/mavbond-install-test.list
 trap cleanup EXIT
 
 # Starts the installed daemon the way the unit does, waits until it logs "running".
@@ -261,5 +254,48 @@ check "/usr/bin/mavbond gone" test ! -e /usr/bin/mavbond
 check "$PLUGINDIR gone" test ! -e "$PLUGINDIR"
 check "unit and its enablement gone" sh -c "test ! -e $UNIT && test ! -L /etc/systemd/system/multi-user.target.wants/mavbond.service"
 
-echo "install-test: $PASSED passed, $FAILED failed"
-[ "$FAILED" -eq 0 ]
+if [ -n "$REPO" ]; then
+    say "apt repository: key and sources line, install, edit, upgrade, purge"
+    cp -a "$REPO" "$WORK/repo"   # the newer version goes into a copy
+    VERSION=$(dpkg-deb -f "$DEB" Version)
+    NEWER=$VERSION+repotest1
+    repo_update() {   # apt-get update of the repository's sources line only: clean or false
+        apt-get -q update -o Dir::Etc::sourcelist="$REPO_LIST" -o Dir::Etc::sourceparts=- \
+            -o APT::Get::List-Cleanup=0 >"$WORK/update.out" 2>&1
+        local rc=$?
+        cat "$WORK/update.out"
+        [ $rc -eq 0 ] && ! grep -q '^[WE]:' "$WORK/update.out"
+    }
+    refused_without_key() { ! repo_update && grep -q NO_PUBKEY "$WORK/update.out"; }
+    candidate_is() {
+        apt-cache policy mavbond >"$WORK/policy.out"
+        cat "$WORK/policy.out"
+        grep -q "Candidate: $1\$" "$WORK/policy.out"
+    }
+    version_installed() { test "$(dpkg-query -W -f='${Version}' mavbond)" = "$1"; }
+    purged() { ! installed && test ! -e /etc/mavbond; }
+    echo "deb file:$WORK/repo bookworm main" > "$REPO_LIST"
+    show "apt refuses the repository without its key" refused_without_key
+    echo "deb [signed-by=$WORK/repo/mavbond-archive-keyring.gpg] file:$WORK/repo bookworm main" > "$REPO_LIST"
+    show "apt-get update with the repository's key" repo_update
+    check "the candidate is $VERSION, from the repository" candidate_is "$VERSION"
+    check "apt-get install mavbond" "${APT[@]}" install mavbond
+    check "installed: $VERSION" version_installed "$VERSION"
+    sed -i 's/^log_level: info$/log_level: debug   # edited by install-test/' "$CONF"
+    check "conffile edited" grep -q 'edited by install-test' "$CONF"
+    dpkg-deb -R "$DEB" "$WORK/newer"
+    sed -i "s/^Version: .*/Version: $NEWER/" "$WORK/newer/DEBIAN/control"
+    check "a newer package ($NEWER)" dpkg-deb --root-owner-group -b "$WORK/newer" "$WORK/mavbond_${NEWER}_$(dpkg --print-architecture).deb"
+    check "scripts/apt-repo adds it" "$HERE/../../scripts/apt-repo" "$WORK/repo" "$WORK/mavbond_${NEWER}_$(dpkg --print-architecture).deb"
+    check "apt-get update" repo_update
+    check "the candidate is $NEWER" candidate_is "$NEWER"
+    check "apt-get upgrade takes it" "${APT[@]}" --only-upgrade install mavbond
+    check "installed: $NEWER" version_installed "$NEWER"
+    check "the edit survives the upgrade" grep -q 'edited by install-test' "$CONF"
+    check "no .dpkg-new/.dpkg-dist left" sh -c "! ls /etc/mavbond/*.dpkg-* 2>/dev/null | grep ."
+    check "mavbond --check-config after the upgrade" /usr/bin/mavbond --check-config
+    check "apt-get purge mavbond" "${APT[@]}" purge mavbond
+    check "package and /etc/mavbond gone" purged
+fi
+
+tally install-test

@@ -26,16 +26,7 @@ WORK=$(mktemp -d /tmp/mavbond-qemu-test.XXXXXX)
 ROOTFS=$WORK/root
 PLUGINDIR=$ROOTFS/usr/lib/$MULTIARCH/mavbond/plugins
 DAEMON_PID=
-PASSED=0
-FAILED=0
-
-ok() { printf 'ok    %s\n' "$*"; PASSED=$((PASSED + 1)); }
-fail() { printf 'FAIL  %s\n' "$*"; FAILED=$((FAILED + 1)); }
-show() {   # show "what" command...: one line and the command's output
-    local what=$1; shift
-    if "$@" >"$WORK/out" 2>&1; then ok "$what"; else fail "$what"; fi
-    sed 's/^/      /' "$WORK/out"
-}
+source "$HERE/checks.sh"
 stop_daemon() {
     [ -n "$DAEMON_PID" ] || return 0
     kill -TERM "$DAEMON_PID" 2>/dev/null || true
@@ -93,5 +84,4 @@ else
     fail "daemon did not start under qemu"; sed 's/^/      /' "$WORK/daemon.log"
 fi
 
-echo "qemu-test ($ARCH): $PASSED passed, $FAILED failed"
-[ "$FAILED" -eq 0 ]
+tally "qemu-test ($ARCH)"

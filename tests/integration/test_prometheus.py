@@ -1,0 +1,238 @@
+"""Debian's Prometheus server (not a parser of ours) scraping a real mavbond with the scrape
+config shipped in conf/examples: the target is up with no scrape error, every metric family
+the README documents is stored, a PromQL query of every series returns what the daemon serves
+and what its status socket shows, and every Grafana dashboard query evaluates without error.
+
+scripts/setup.sh installs the prometheus package; without it the test skips and says so."""
+from __future__ import annotations
+
+import calendar
+import json
+import re
+import shutil
+import subprocess
+import time
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from helpers import HOST, REPO, free_port, udp_server
+from synth import ardupilot_stream
+from test_metrics import DASHBOARD, scrape, status_document, tcp_port, value
+
+PROMETHEUS = shutil.which("prometheus") or "/usr/bin/prometheus"
+SCRAPE_CONFIG = REPO / "conf" / "examples" / "prometheus-mavbond.yml"
+README = REPO / "README.md"
+# Series whose value moves between two reads of a quiet daemon: its clock, the age of its last
+# frame, and the HTTP endpoint's own counters (every scrape adds to them).
+MOVING = re.compile(r"^mavbond_(uptime_seconds|endpoint_last_rx_age_seconds|metrics_http_\w+)$")
+
+pytestmark = pytest.mark.skipif(
+    not Path(PROMETHEUS).is_file(),
+    reason="Debian's prometheus is not installed (scripts/setup.sh installs it as root)")
+
+
+def documented_families() -> set:
+    """Every metric name in the README's table of what /metrics serves, `{a,b}` expanded and
+    `<counter>` replaced by the counters the row lists."""
+    text = README.read_text()
+    table = text[text.index("| metric | labels | what |"):]
+    table = table[:table.index("\n\n")]
+    names = set()
+    for row in table.splitlines()[2:]:
+        first, _, rest = row.strip("|").partition("|")
+        counters = re.findall(r"`([a-z_]+)`", rest.split("|")[-1])
+        for pattern in re.findall(r"`(mavbond_[^`]+)`", first):
+            expanded = [pattern]
+            while any("{" in p or "<counter>" in p for p in expanded):
+                nxt = []
+                for p in expanded:
+                    if "<counter>" in p:
+                        nxt += [p.replace("<counter>", c) for c in counters]
+                    elif m := re.search(r"\{([^}]*)\}", p):
+                        nxt += [p[:m.start()] + alt + p[m.end():] for alt in m.group(1).split(",")]
+                    else:
+                        nxt.append(p)
+                expanded = nxt
+            names |= set(expanded)
+    return names
+
+
+class Prometheus:
+    """prometheus itself, with the shipped scrape config pointed at `target` and scraping
+    every second (the only two changes), its storage and web port in `workdir`."""
+
+    def __init__(self, workdir: Path, target: str):
+        self.port = free_port()
+        shipped = SCRAPE_CONFIG.read_text()
+        assert "'127.0.0.1:9273'" in shipped and "scrape_interval: 5s" in shipped
+        config = workdir / "prometheus.yml"
+        config.write_text(shipped.replace("'127.0.0.1:9273'", f"'{target}'")
+                          .replace("scrape_interval: 5s", "scrape_interval: 1s")
+                          .replace("scrape_timeout: 4s", "scrape_timeout: 1s"))
+        self.log_path = workdir / "prometheus.log"
+        self.log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(
+            [PROMETHEUS, f"--config.file={config}", f"--storage.tsdb.path={workdir / 'tsdb'}",
+             f"--web.listen-address={HOST}:{self.port}", "--log.level=warn"],
+            stdout=self.log, stderr=subprocess.STDOUT)
+
+    def api(self, path: str, **params) -> dict:
+        url = f"http://{HOST}:{self.port}/api/v1/{path}"
+        if params:
+            url += "?" + urllib.parse.urlencode(params)
+        try:
+            with urllib.request.urlopen(url, timeout=5) as r:
+                doc = json.load(r)
+        except urllib.error.HTTPError as e:  # a bad query: 400 with the error as JSON
+            doc = json.load(e)
+        return doc
+
+    def wait_ready(self, timeout: float = 60.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            assert self.proc.poll() is None, f"prometheus exited: {self.log_path.read_text()}"
+            try:
+                with urllib.request.urlopen(f"http://{HOST}:{self.port}/-/ready", timeout=2):
+                    return
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError(f"prometheus not ready in {timeout}s: {self.log_path.read_text()}")
+
+    def scraped_after(self, instant: float, timeout: float = 30.0) -> dict:
+        """The mavbond target once a scrape that began after `instant` (epoch s) succeeded."""
+        deadline = time.monotonic() + timeout
+        target = None
+        while time.monotonic() < deadline:
+            targets = self.api("targets")["data"]["activeTargets"]
+            target = next((t for t in targets if t["scrapePool"] == "mavbond"), None)
+            last = target["lastScrape"] if target else "0001"
+            if target and target["health"] == "up" and not last.startswith("0001"):
+                # RFC 3339 in UTC with nanoseconds: whole seconds are enough here
+                t = calendar.timegm(time.strptime(last[:19], "%Y-%m-%dT%H:%M:%S"))
+                if t > instant + 1:
+                    return target
+            time.sleep(0.25)
+        raise AssertionError(f"no good scrape after the traffic in {timeout}s: {target}")
+
+    def query(self, expr: str) -> list:
+        doc = self.api("query", query=expr)
+        assert doc["status"] == "success", (expr, doc)
+        return doc["data"]["result"]
+
+    def stop(self):
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.log.close()
+
+
+def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_path):
+    """One vehicle's stream into a gateway with every kind of figure: a broadcast bond with
+    dedup (by content) and renumbering, an active-link bond with linkswitch, stats over both. Once the
+    traffic is over and Prometheus has scraped again, each documented family is stored, each
+    series Prometheus holds has the value /metrics serves, and the status socket's counters
+    come back from PromQL unchanged."""
+    ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "gcs")}
+    m_port = tcp_port()
+    status_path = tmp_path / "status.sock"
+    g = lab.gateway([udp_server("a1", ports["a1"], bond="bonded"),
+                     udp_server("a2", ports["a2"], bond="bonded"),
+                     udp_server("b1", ports["b1"], bond="backup"),
+                     udp_server("b2", ports["b2"], bond="backup"),
+                     udp_server("gcs", ports["gcs"])],
+                    bonds=[{"name": "bonded", "tx": "broadcast", "renumber": True},
+                           {"name": "backup", "tx": "active"}],
+                    filters=[{"plugin": "dedup", "bonds": ["bonded"], "key": "content"},
+                             {"plugin": "linkswitch", "bonds": ["backup"]},
+                             {"plugin": "stats"}],
+                    status_socket=str(status_path), metrics=f"{{listen: {HOST}:{m_port}}}")
+    prom = Prometheus(tmp_path, f"{HOST}:{m_port}")
+    try:
+        prom.wait_ready()
+        src = lab.sock()
+        frames = [f for _, f in ardupilot_stream(2, seed=5)]
+        for i, f in enumerate(frames):
+            # every frame on both links of each bond, one in ten lost on a1 and on b2
+            for k in ("a1", "a2", "b1", "b2"):
+                if not (i % 10 == 3 and k in ("a1", "b2")):
+                    src.sendto(f, (HOST, ports[k]))
+            if i % 20 == 0:
+                time.sleep(0.01)
+        # The daemon's own counters say when the last frame went through.
+        lost = len(range(3, len(frames), 10))
+        want = {"a1": len(frames) - lost, "a2": len(frames), "b1": len(frames),
+                "b2": len(frames) - lost}
+        deadline = time.monotonic() + 10
+        while True:
+            m = scrape(m_port)
+            rx = {k: value(m, "mavbond_endpoint_rx_frames_total", endpoint=k, kind="udp-server",
+                           bond="bonded" if k[0] == "a" else "backup") for k in want}
+            if rx == want:
+                break
+            assert time.monotonic() < deadline, f"the gateway took {rx} of {want} frames"
+            time.sleep(0.1)
+        quiet = time.time()
+        target = prom.scraped_after(quiet)
+        assert target["lastError"] == "", target
+        served = scrape(m_port)
+        st = status_document(status_path)
+        print(f"\nprometheus scraped {target['scrapeUrl']} in {target['lastScrapeDuration']:.4f} s;"
+              f" {len(served['samples'])} series served")
+
+        # Every documented family is stored (a counter family under its _total name).
+        stored = set(prom.api("label/__name__/values")["data"])
+        documented = documented_families()
+        assert len(documented) > 60, sorted(documented)
+        print(f"{len(documented)} documented families, each stored")
+        missing = {n for n in documented if n not in stored and n + "_total" not in stored}
+        assert not missing, f"documented but not stored by Prometheus: {sorted(missing)}"
+
+        # Every series served has the same value in Prometheus (NaN stays NaN).
+        compared = 0
+        for (name, labels), v in served["samples"].items():
+            if MOVING.match(name):
+                continue
+            sel = ",".join(f'{k}="{val}"' for k, val in labels)
+            (result,) = prom.query(f"{name}{{{sel}}}")
+            got = float(result["value"][1])
+            assert got == v or (got != got and v != v), (name, labels, got, v)
+            compared += 1
+        print(f"{compared} series equal in Prometheus and /metrics")
+
+        # The status socket's figures, read back through PromQL.
+        for ep in st["endpoints"]:
+            for k, v in ep.items():
+                if isinstance(v, int) and not isinstance(v, bool) and k != "last_rx_ms_ago":
+                    (r,) = prom.query(f'mavbond_endpoint_{k}_total{{endpoint="{ep["name"]}"}}')
+                    assert float(r["value"][1]) == v, (ep["name"], k)
+        for b in st["bonds"]:
+            (r,) = prom.query(f'mavbond_bond_switches_total{{bond="{b["name"]}"}}')
+            assert float(r["value"][1]) == b["switches"]
+            for k, v in b.get("renumber", {}).items():
+                (r,) = prom.query(f'mavbond_renumber_{k}_total{{bond="{b["name"]}"}}')
+                assert float(r["value"][1]) == v, (b["name"], k)
+        filters = {f["name"]: f["status"] for f in st["filters"]}
+        (bond,) = [b for b in filters["stats"]["bonds"] if b["name"] == "bonded"]
+        (r,) = prom.query('mavbond_stats_bond_delivered_frames_total{bond="bonded"}')
+        assert float(r["value"][1]) == bond["delivered"] == len(frames)
+        dups = sum(float(r["value"][1]) for r in
+                   prom.query('mavbond_dedup_duplicates_total{bond="bonded"}'))
+        assert dups == sum(link["duplicates"] for link in filters["dedup"]["links"])
+        assert dups == len(frames) - lost  # every copy that came second
+
+        # Every dashboard query evaluates, over the window the traffic ran in.
+        d = json.loads(DASHBOARD.read_text())
+        for p in d["panels"]:
+            for t in p.get("targets", []):
+                expr = (t["expr"].replace("$__rate_interval", "1m")
+                        .replace("$instance", ".*").replace("$bond", ".*"))
+                prom.query(expr)
+        assert g.alive()
+    finally:
+        prom.stop()
