@@ -5,6 +5,9 @@ the standard library (the package tests run without the project's .venv).
   route_check.py pair GCS_PORT AUTOPILOT_PORT
       Two UDP server endpoints on 127.0.0.1: a heartbeat from the "autopilot" reaches the
       "gcs" and one from the gcs reaches the autopilot, byte-identical.
+  route_check.py stream GCS_PORT AUTOPILOT_PORT SECONDS
+      The autopilot sends 50 heartbeats a second for SECONDS (while, say, the daemon reloads);
+      the gcs gets every one, once, in order.
   route_check.py bond GCS_PORT RADIO1_PORT RADIO2_PORT
       Frames sent over both links of a bond reach the gcs once (whichever filter drops the
       other copy: linkswitch passes the active link only, dedup drops duplicates), and a
@@ -78,6 +81,29 @@ def pair(gcs_port, ap_port):
     check(back in got, f"gcs -> autopilot: heartbeat routed ({len(got)} received)")
 
 
+def stream(gcs_port, ap_port, seconds):
+    gcs, ap = sock(), sock()
+    gcs.sendto(heartbeat(0, 255, 190, 6), (HOST, gcs_port))
+    time.sleep(0.3)
+    sent, got = [], []
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        frame = heartbeat(len(sent) % 256, 1, 1, 2)
+        ap.sendto(frame, (HOST, ap_port))
+        sent.append(frame)
+        next_send = start + len(sent) / 50
+        while True:  # receive until the next frame is due
+            gcs.settimeout(max(0.001, next_send - time.monotonic()))
+            try:
+                got.append(gcs.recv(4096))
+            except socket.timeout:
+                break
+    gcs.settimeout(0.2)
+    got += receive(gcs, 2.0)
+    check(got == sent, f"autopilot -> gcs for {seconds} s: {len(sent)} sent, {len(got)} received, "
+          f"{'all once and in order' if got == sent else 'NOT all once in order'}")
+
+
 def bond(gcs_port, r1_port, r2_port):
     gcs, r1, r2 = sock(), sock(), sock()
     gcs.sendto(heartbeat(0, 255, 190, 6), (HOST, gcs_port))
@@ -100,7 +126,7 @@ def bond(gcs_port, r1_port, r2_port):
 
 def main():
     mode, ports = sys.argv[1], [int(p) for p in sys.argv[2:]]
-    {"pair": pair, "bond": bond}[mode](*ports)
+    {"pair": pair, "stream": stream, "bond": bond}[mode](*ports)
     return 1 if FAILED else 0
 
 
