@@ -47,8 +47,9 @@ skip() {   # the machine cannot do it: why, and one skip in the tally
     exit 0
 }
 
-in_container() {   # a command in the booted container (all its namespaces; its PATH)
-    nsenter -t "$INIT" -m -u -i -n -p env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 "$@"
+in_container() {   # a command in the booted container: its namespaces, its root (-r: also
+    # from inside a chroot, where entering the mount namespace alone keeps the chroot's), its PATH
+    nsenter -t "$INIT" -m -u -i -n -p -r -w env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 "$@"
 }
 
 container_init() {   # the container's PID 1 as this machine numbers it: a descendant of nspawn
@@ -56,7 +57,7 @@ container_init() {   # the container's PID 1 as this machine numbers it: a desce
     while [ ${#queue[@]} -gt 0 ]; do
         p=${queue[0]}
         queue=("${queue[@]:1}")
-        if [ "$p" != "$NSPAWN_PID" ] &&
+        if [ "$p" != "$NSPAWN_PID" ] && [ "$(cat "/proc/$p/comm" 2>/dev/null)" = systemd ] &&
            [ "$(awk '/^NSpid:/ {print $NF}' "/proc/$p/status" 2>/dev/null)" = 1 ]; then
             echo "$p"
             return 0
@@ -117,11 +118,17 @@ if [ -z "$INIT" ]; then
     skip "systemd-nspawn could not boot a container on this machine (its output above)"
 fi
 # systemctl talks to PID 1 over /run/systemd/private, there once systemd has set up.
+up=no
 for _ in $(seq 300); do
-    in_container test -S /run/systemd/private 2>/dev/null && break
+    in_container test -S /run/systemd/private 2>/dev/null && { up=yes; break; }
     sleep 0.1
 done
-state=$(timeout 60 nsenter -t "$INIT" -m -u -i -n -p systemctl is-system-running --wait 2>&1) || true
+if [ $up = no ]; then
+    sed 's/^/      /' "$WORK/boot.log"
+    in_container ls /srv/test 2>&1 | sed 's/^/      /'
+    skip "the container's systemd did not come up within 30 s here (its output above)"
+fi
+state=$(in_container timeout 60 systemctl is-system-running --wait 2>&1) || true
 check "systemd is PID 1 and the system is up: $state" test "$state" = running
 
 # --- install: the unit starts from the shipped config -------------------------------------
