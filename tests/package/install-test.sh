@@ -57,6 +57,18 @@ e = {x["name"]: x for x in json.load(sys.stdin)["endpoints"]}
 print({n: (x["rx_frames"], x["tx_frames"]) for n, x in e.items()})
 sys.exit(not (e["gcs"]["rx_frames"] >= 2 and e["autopilot"]["rx_frames"] >= 1))'
 }
+# The conffile edit that reinstalls and upgrades must keep.
+edit_conffile() {
+    sed -i 's/^log_level: info$/log_level: debug   # edited by install-test/' "$CONF"
+    edit_kept
+}
+edit_kept() { grep -q 'edited by install-test' "$CONF"; }
+no_dpkg_leftovers() {   # prints what dpkg left beside the conffile, if anything
+    local left
+    left=$(ls /etc/mavbond/*.dpkg-* 2>/dev/null || true)
+    echo "$left"
+    [ -z "$left" ]
+}
 installed() { dpkg-query -W -f='${Status}' mavbond 2>/dev/null | grep -q 'install ok installed'; }
 known() { dpkg-query -W -f='${Status}' mavbond >/dev/null 2>&1 &&
           ! dpkg-query -W -f='${Status}' mavbond | grep -q 'not-installed'; }
@@ -239,13 +251,12 @@ for ex in /usr/share/doc/mavbond/examples/*.yaml; do
 done
 
 say "conffile: edit, reinstall, purge"
-sed -i 's/^log_level: info$/log_level: debug   # edited by install-test/' "$CONF"
-check "conffile edited" grep -q 'edited by install-test' "$CONF"
+check "conffile edited" edit_conffile
 check "reinstall (apt-get install --reinstall)" "${APT[@]}" install --reinstall "$DEB"
-check "the edit survives the reinstall" grep -q 'edited by install-test' "$CONF"
-check "no .dpkg-new/.dpkg-dist left" sh -c "! ls /etc/mavbond/*.dpkg-* 2>/dev/null | grep ."
+check "the edit survives the reinstall" edit_kept
+check "no .dpkg-new/.dpkg-dist left" no_dpkg_leftovers
 check "dpkg -i over it (non-interactive)" dpkg -i --force-confdef --force-confold "$DEB"
-check "the edit survives dpkg -i" grep -q 'edited by install-test' "$CONF"
+check "the edit survives dpkg -i" edit_kept
 check "mavbond --check-config on the edited conffile" /usr/bin/mavbond --check-config
 check "apt-get purge mavbond" "${APT[@]}" purge mavbond
 check "package gone" sh -c "! dpkg-query -W -f='\${Status}' mavbond 2>/dev/null | grep -q 'install ok installed'"
@@ -281,8 +292,7 @@ if [ -n "$REPO" ]; then
     check "the candidate is $VERSION, from the repository" candidate_is "$VERSION"
     check "apt-get install mavbond" "${APT[@]}" install mavbond
     check "installed: $VERSION" version_installed "$VERSION"
-    sed -i 's/^log_level: info$/log_level: debug   # edited by install-test/' "$CONF"
-    check "conffile edited" grep -q 'edited by install-test' "$CONF"
+    check "conffile edited" edit_conffile
     dpkg-deb -R "$DEB" "$WORK/newer"
     sed -i "s/^Version: .*/Version: $NEWER/" "$WORK/newer/DEBIAN/control"
     check "a newer package ($NEWER)" dpkg-deb --root-owner-group -b "$WORK/newer" "$WORK/mavbond_${NEWER}_$(dpkg --print-architecture).deb"
@@ -291,8 +301,8 @@ if [ -n "$REPO" ]; then
     check "the candidate is $NEWER" candidate_is "$NEWER"
     check "apt-get upgrade takes it" "${APT[@]}" --only-upgrade install mavbond
     check "installed: $NEWER" version_installed "$NEWER"
-    check "the edit survives the upgrade" grep -q 'edited by install-test' "$CONF"
-    check "no .dpkg-new/.dpkg-dist left" sh -c "! ls /etc/mavbond/*.dpkg-* 2>/dev/null | grep ."
+    check "the edit survives the upgrade" edit_kept
+    check "no .dpkg-new/.dpkg-dist left" no_dpkg_leftovers
     check "mavbond --check-config after the upgrade" /usr/bin/mavbond --check-config
     check "apt-get purge mavbond" "${APT[@]}" purge mavbond
     check "package and /etc/mavbond gone" purged
