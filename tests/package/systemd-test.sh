@@ -143,7 +143,8 @@ unit_is() {   # unit_is STATE: the unit reaches it within 10 s
     return 1
 }
 check "systemctl is-active mavbond: active (postinst started it)" unit_is active
-running_log() { in_container journalctl -u mavbond --no-pager -o cat | grep -m1 "running with"; }
+journal() { in_container journalctl -u mavbond --no-pager -o cat; }   # the unit's messages
+running_log() { journal | grep -m1 "running with"; }
 show "the journal: it runs the shipped config" running_log
 show "a frame routed between the shipped endpoints (UDP 14550 <-> 14540)" \
     in_container python3 /srv/test/route_check.py pair 14550 14540
@@ -193,7 +194,7 @@ stream_rc=0
 wait "$stream_pid" || stream_rc=$?
 sed 's/^/      /' "$WORK/stream.out"
 check "no frame lost or doubled across the reload" test "$stream_rc" -eq 0
-reloaded() { in_container journalctl -u mavbond --no-pager -o cat | grep "reloaded: "; }
+reloaded() { journal | grep "reloaded: "; }
 show "the journal: the reload took the edit" reloaded
 check "still active" unit_is active
 check "the same process (MainPID $pid_before)" test "$(main_pid)" = "$pid_before"
@@ -204,7 +205,7 @@ show "a frame over both radios of the bond, delivered once" \
 sleep 2   # both radios silent for over silent_after
 link_events() {
     local j
-    j=$(in_container journalctl -u mavbond --no-pager -o cat | grep "link event: " || true)
+    j=$(journal | grep "link event: " || true)
     echo "$j"
     grep -q "link radio1 up (bond air" <<<"$j" && grep -q "link radio2 lost (bond air" <<<"$j"
 }
@@ -221,7 +222,7 @@ stopped_clean() {
         grep -q "ActiveState=inactive" <<<"$r"
 }
 show "stopped cleanly" stopped_clean
-exit_line() { in_container journalctl -u mavbond --no-pager -o cat | tail -n 3; }
+exit_line() { journal | tail -n 3; }
 show "the journal's last lines" exit_line
 
 tally systemd-test
