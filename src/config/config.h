@@ -84,7 +84,7 @@ struct BondConfig {
     enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
     SourceMark mark;
     /// Rewrite the sequence number of delivered unsigned frames so a GCS sees the bond's real
-    /// loss (needs a dedup filter with key: content on the bond; see src/core/renumber.h).
+    /// loss (needs a dedup filter with key: content on the bond; see src/routing/renumber.h).
     bool renumber = false;
     bool operator==(const BondConfig&) const = default;
 };
@@ -128,7 +128,7 @@ struct FilterConfig {
     bool operator==(const FilterConfig&) const = default;
 };
 
-/// `metrics:`: the Prometheus endpoint (src/core/metrics_http.h). Off unless `listen` is given.
+/// `metrics:`: the Prometheus endpoint (src/daemon/metrics_http.h). Off unless `listen` is given.
 struct MetricsConfig {
     bool enabled = false;
     std::string host = "127.0.0.1";  // only a port given: loopback, never every interface

@@ -4,7 +4,7 @@
 #include <ctime>
 #include <thread>
 
-#include "core/router.h"
+#include "routing/router.h"
 
 namespace mavbond {
 namespace {

@@ -9,7 +9,7 @@
 #include <cerrno>
 
 #include "core/log.h"
-#include "core/router.h"
+#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {

@@ -5,7 +5,7 @@
 #include <cstring>
 
 #include "core/log.h"
-#include "core/router.h"
+#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "core/event_loop.h"
-#include "core/router.h"
+#include "routing/router.h"
 #include "endpoints/endpoint.h"
 
 namespace mavbond {

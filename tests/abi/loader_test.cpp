@@ -7,9 +7,9 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
-#include "core/router.h"
-#include "filters/filter_chain.h"
-#include "filters/plugin_loader.h"
+#include "routing/router.h"
+#include "routing/filter_chain.h"
+#include "routing/plugin_loader.h"
 
 namespace mavbond {
 namespace {

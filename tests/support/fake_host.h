@@ -10,8 +10,8 @@
 #include <vector>
 
 #include "config/config.h"
-#include "filters/plugin_host.h"
-#include "filters/stream_positions.h"
+#include "routing/plugin_host.h"
+#include "routing/stream_positions.h"
 
 namespace mavbond {
 

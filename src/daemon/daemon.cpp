@@ -1,0 +1,410 @@
+#include "daemon/daemon.h"
+
+#include <csignal>
+#include <cstdio>
+#include <cstring>
+
+#include "core/log.h"
+#include "daemon/metrics.h"
+#include "mavbond_build_config.h"
+
+namespace mavbond {
+namespace {
+
+// How long an endpoint that stops may wait for its peer to take a frame it half wrote: at
+// exit, and (shorter: the loop keeps routing) when a reload removes or changes it.
+constexpr Duration kExitFinishBound = milliseconds(500);
+constexpr Duration kReloadFinishBound = milliseconds(50);
+
+/// "WHAT endpoint=NAME kind=KIND counter=value..." (WHAT: "stats" for the periodic and exit
+/// lines, which tools parse).
+std::string counters_line(const Endpoint& e, const char* what = "stats") {
+    std::string line = std::string(what) + " endpoint=" + e.name() + " kind=" + e.kind();
+    for_each_counter(e.total_stats(), [&line](const char* name, uint64_t value) {
+        line += std::string(" ") + name + "=" + std::to_string(value);
+    });
+    return line;
+}
+
+/// Each bonded endpoint's (name, bond), in config order: the filters number a bond's links
+/// by this order, so a change in it restarts them.
+std::vector<std::pair<std::string, std::string>> bond_members(const Config& c) {
+    std::vector<std::pair<std::string, std::string>> out;
+    for (const auto& ep : c.endpoints) {
+        if (!ep.bond.empty())
+            out.emplace_back(ep.name, ep.bond);
+    }
+    return out;
+}
+
+/// Whether the filters must restart: anything they depend on changed (their entries, the
+/// bonds, the order of the bonds' links, the plugin directory).
+bool filters_must_restart(const Config& old, const Config& next) {
+    return !same_settings(old.bonds, next.bonds) || !same_settings(old.filters, next.filters) ||
+           bond_members(old) != bond_members(next) || old.plugin_dir != next.plugin_dir;
+}
+
+/// This process's peak resident set (VmHWM), in KiB; -1 when /proc does not say. Not
+/// ru_maxrss: Linux carries that over from the parent across exec, so a daemon started from a
+/// big process would report the parent's peak.
+long peak_rss_kib() {
+    FILE* f = fopen("/proc/self/status", "r");
+    if (!f)
+        return -1;
+    char line[256];
+    long kib = -1;
+    while (fgets(line, sizeof line, f)) {
+        if (sscanf(line, "VmHWM: %ld kB", &kib) == 1)
+            break;
+    }
+    fclose(f);
+    return kib;
+}
+
+const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
+    for (const auto& ep : c.endpoints) {
+        if (ep.name == name)
+            return &ep;
+    }
+    return nullptr;
+}
+
+}  // namespace
+
+void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval) {
+    double secs = std::chrono::duration<double>(interval).count();
+    for (const auto& e : endpoints) {
+        EndpointStats now = e->total_stats();
+        EndpointStats& was = last_[e.get()];
+        std::string what;
+        auto add = [&what](uint64_t delta, const char* label) {
+            if (delta == 0)
+                return;
+            if (!what.empty())
+                what += ", ";
+            what += std::to_string(delta) + " " + label;
+        };
+        add(now.rx.crc_errors - was.rx.crc_errors, "CRC errors");
+        add(now.rx.garbage_bytes - was.rx.garbage_bytes, "garbage bytes");
+        add(now.rx.unknown_ids - was.rx.unknown_ids, "unknown message ids");
+        add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
+        add(now.rx_overflows - was.rx_overflows,
+            "datagrams dropped by the kernel (receive buffer full: raise rx_buffer)");
+        add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
+        add(now.tx_errors - was.tx_errors, "write errors");
+        add(now.sig_unsigned - was.sig_unsigned,
+            e->config().signing.require ? "unsigned frames dropped" : "unsigned frames let through");
+        add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
+        add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
+        if (!what.empty())
+            log_notice("[%s] %s in the last %.0fs", e->name().c_str(), what.c_str(), secs);
+        was = now;
+    }
+}
+
+Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
+    : opts_(opts), loop_(loop), config_(std::move(config)),
+      router_(loop, config_->route_timeout, config_->bonds) {}
+
+Daemon::~Daemon() {
+    link_events_.reset();
+    // Endpoints go away because the daemon stops, not because links fail: the filters must
+    // not take it for an outage (a link switch logged at every shutdown).
+    router_.set_filter(nullptr);
+    endpoints_.clear();
+}
+
+Result<std::unique_ptr<Config>> Daemon::load(const DaemonOptions& opts) {
+    auto config = load_config(opts.config_path);
+    if (!config)
+        return config.error();
+    auto c = std::make_unique<Config>(std::move(config.value()));
+    if (!opts.log_level.empty())
+        c->log_level = *parse_log_level(opts.log_level);  // checked in prepare()
+    if (!opts.plugin_dir.empty())
+        c->plugin_dir = opts.plugin_dir;
+    if (c->plugin_dir.empty())
+        c->plugin_dir = MAVBOND_PLUGIN_DIR;
+    return c;
+}
+
+std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
+    const DaemonOptions& opts, EventLoop& loop) {
+    if (!opts.log_level.empty() && !parse_log_level(opts.log_level))
+        return StartError{64, "mavbond: unknown log level '" + opts.log_level + "'"};
+    auto config = load(opts);
+    if (!config)
+        return StartError{kExitConfig, config.error().message};
+    std::unique_ptr<Daemon> d(new Daemon(opts, loop, std::move(config.value())));
+    log_set_level(opts.check_config ? LogLevel::Warning : d->config_->log_level);
+    // The chain comes before the endpoints (it hears of each one as it registers) and goes
+    // after them. --check-config builds it too: plugin options are part of the config.
+    auto chain = FilterChain::create(*d->config_, d->config_->plugin_dir, loop, d->router_);
+    if (!chain)
+        return StartError{kExitConfig, chain.error().message};
+    d->install_filters(std::move(chain.value()), d->config_->bonds);
+    return d;
+}
+
+FrameFilter* Daemon::data_path() const {
+    return renumber_->active() ? static_cast<FrameFilter*>(renumber_.get()) : chain_.get();
+}
+
+void Daemon::start_local_source(bool identity_changed) {
+    link_events_.reset();
+    if (identity_changed || !local_source_)
+        local_source_ = std::make_unique<LocalSource>(config_->identity, loop_, router_);
+    if (config_->link_events.enabled)
+        link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, endpoints_,
+                                                          router_, loop_, *local_source_);
+}
+
+std::optional<Daemon::StartError> Daemon::start() {
+    signal(SIGPIPE, SIG_IGN);  // a vanished TCP peer is an error code, not a death
+    auto signals = {
+        std::pair<int, EventLoop::SignalHandler>{SIGINT, [this](int signo) {
+             log_notice("%s: stopping", strsignal(signo));
+             loop_.request_exit(0);
+         }},
+        {SIGTERM, [this](int signo) {
+             log_notice("%s: stopping", strsignal(signo));
+             loop_.request_exit(0);
+         }},
+        {SIGHUP, [this](int) { reload(); }},
+        {SIGUSR1, [this](int) { dump_counters(); }},
+    };
+    for (const auto& [sig, handler] : signals) {
+        if (auto r = loop_.on_signal(sig, handler); !r)
+            return StartError{kExitOsError, r.error().message};
+    }
+    auto endpoints = make_endpoints(*config_, loop_, router_);
+    if (!endpoints)
+        return StartError{kExitOsError, endpoints.error().message};
+    endpoints_ = std::move(endpoints.value());
+    started_ = loop_.now();
+    start_local_source(true);
+    open_status_socket();
+    open_metrics();
+    // The timers read the current config each time, so a reload changes their periods.
+    report_timer_ = loop_.schedule(config_->report_interval, [this] {
+        report_.run(endpoints_, config_->report_interval);
+        return config_->report_interval;
+    });
+    route_timer_ = loop_.schedule(seconds(1), [this] {
+        router_.expire_routes(loop_.now());
+        return Duration(seconds(1));
+    });
+    // The frames of a round that waited for earlier arrivals, before the timers see the time.
+    loop_.add_after_io_hook([this] { router_.merge_round(); });
+    // Anything still queued (a backlog waiting for EPOLLOUT is flushed by its own watch).
+    loop_.add_round_hook([this] { router_.end_batch(); });
+    log_notice("mavbond %s running with %zu endpoints from %s", MAVBOND_VERSION,
+               endpoints_.size(), opts_.config_path.c_str());
+    return std::nullopt;
+}
+
+int Daemon::run() {
+    int code = loop_.run();
+    router_.set_filter(nullptr);  // see ~Daemon
+    // What is still queued goes out if the peers take it now, a frame half written on a
+    // stream is completed, the rest is counted as dropped: the final counters account for
+    // every frame. Bounded: a stalled peer cannot hold the stop (its stream ends cut, logged).
+    TimePoint finish_by = Clock::now() + kExitFinishBound;
+    for (const auto& e : endpoints_)
+        e->finish(finish_by);
+    dump_counters();
+    renumber_->log_summary();
+    log_notice("exit: routed %llu frames, %llu without a destination, %llu held back for arrival "
+               "order; peak RSS %ld KiB",
+               (unsigned long long)router_.frames_routed(),
+               (unsigned long long)router_.frames_without_destination(),
+               (unsigned long long)router_.frames_held_back(), peak_rss_kib());
+    return code;
+}
+
+void Daemon::open_status_socket() {
+    status_.reset();
+    if (config_->status_socket.empty())
+        return;
+    auto st = StatusSocket::open(config_->status_socket, loop_,
+                                 [this] { return status_document(); });
+    // Telemetry matters more than the status: without its socket the daemon still routes.
+    if (st)
+        status_ = std::move(st.value());
+    else
+        log_warning("%s: mavbondctl cannot reach this daemon", st.error().message.c_str());
+}
+
+void Daemon::open_metrics() {
+    metrics_.reset();
+    if (!config_->metrics.enabled)
+        return;
+    const MetricsConfig& mc = config_->metrics;
+    auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout},
+                                     loop_, [this] {
+                                         return metrics_document(endpoints_, router_, *chain_,
+                                                                 *renumber_, started_, loop_.now());
+                                     });
+    // As with the status socket: without its metrics the daemon still routes.
+    if (m)
+        metrics_ = std::move(m.value());
+    else
+        log_warning("%s: Prometheus cannot scrape this daemon", m.error().message.c_str());
+}
+
+void Daemon::dump_counters() const {
+    for (const auto& e : endpoints_)
+        log_notice("%s", counters_line(*e).c_str());
+}
+
+bool Daemon::reload() {
+    log_notice("SIGHUP: reloading %s", opts_.config_path.c_str());
+    auto loaded = load(opts_);
+    if (!loaded) {
+        log_error("reload refused, the running configuration stays: %s",
+                  loaded.error().message.c_str());
+        return false;
+    }
+    std::unique_ptr<Config> next = std::move(loaded.value());
+
+    // The new chain is built before anything is touched, so a plugin that will not load
+    // refuses the whole reload.
+    const bool filters_restart = filters_must_restart(*config_, *next);
+    std::unique_ptr<FilterChain> next_chain;
+    if (filters_restart) {
+        auto chain = FilterChain::create(*next, next->plugin_dir, loop_, router_);
+        if (!chain) {
+            log_error("reload refused, the running configuration stays: %s",
+                      chain.error().message.c_str());
+            return false;
+        }
+        next_chain = std::move(chain.value());
+    }
+
+    link_events_.reset();  // it watches the endpoints about to change
+    const size_t running = endpoints_.size();
+    std::map<std::string, Endpoint::Ptr> kept = stop_changed_endpoints(*next);
+    const size_t kept_count = kept.size();
+    if (next_chain)
+        install_filters(std::move(next_chain), next->bonds);  // hears of every endpoint kept
+    router_.set_route_timeout(next->route_timeout);
+    const auto [started, failed] = start_endpoints(*next, kept);
+    apply_settings(std::move(next));
+    log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
+               kept_count, running - kept_count, started,
+               failed ? (", " + std::to_string(failed) + " failed").c_str() : "",
+               filters_restart ? "restarted" : "kept");
+    return true;
+}
+
+void Daemon::install_filters(std::unique_ptr<FilterChain> chain,
+                             const std::vector<BondConfig>& bonds) {
+    router_.set_filter(nullptr);
+    if (renumber_)
+        renumber_->log_summary();
+    renumber_.reset();
+    chain_ = std::move(chain);
+    renumber_ = std::make_unique<RenumberStage>(*chain_, router_, bonds);
+    router_.replace_bonds(bonds);
+    router_.set_filter(data_path());
+}
+
+std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config& next) {
+    // An endpoint keeps running when its declaration means the same as before. One that
+    // stops writes its queue if its peer takes it at once (a frame half written on a stream
+    // is completed, within a bound), the rest is counted as dropped, and its last counters
+    // are logged: no frame leaves unaccounted.
+    const TimePoint finish_by = Clock::now() + kReloadFinishBound;
+    std::map<std::string, Endpoint::Ptr> kept;
+    for (auto& e : endpoints_) {
+        const EndpointConfig* now = find_endpoint(next, e->config().name);
+        if (now && same_settings(*now, e->config()) &&
+            config_->unknown_messages == next.unknown_messages) {
+            kept[e->config().name] = std::move(e);
+            continue;
+        }
+        e->finish(finish_by);
+        log_notice("reload: %s", counters_line(*e, "stopped").c_str());
+        report_.forget(*e);
+        e.reset();  // closes its sockets before a replacement binds the same address
+    }
+    endpoints_.clear();
+    return kept;
+}
+
+std::pair<size_t, size_t> Daemon::start_endpoints(const Config& next,
+                                                  std::map<std::string, Endpoint::Ptr>& kept) {
+    size_t started = 0, failed = 0;
+    for (const auto& ep : next.endpoints) {
+        if (auto k = kept.find(ep.name); k != kept.end()) {
+            endpoints_.push_back(std::move(k->second));
+            continue;
+        }
+        auto e = make_endpoint(ep, next, loop_, router_);
+        if (!e) {
+            // The rest of the new config stands; this endpoint is reported and left out.
+            log_error("reload: endpoint '%s': %s", ep.name.c_str(), e.error().message.c_str());
+            failed++;
+            continue;
+        }
+        endpoints_.push_back(std::move(e.value()));
+        started++;
+    }
+    return {started, failed};
+}
+
+void Daemon::apply_settings(std::unique_ptr<Config> next) {
+    const bool status_moved = config_->status_socket != next->status_socket;
+    const bool metrics_moved = !(config_->metrics == next->metrics);
+    const bool identity_changed = !(config_->identity == next->identity);
+    config_ = std::move(next);
+    log_set_level(config_->log_level);
+    start_local_source(identity_changed);
+    if (status_moved)
+        open_status_socket();
+    if (metrics_moved)
+        open_metrics();
+}
+
+std::string Daemon::status_document() const {
+    TimePoint now = loop_.now();
+    std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
+                      std::to_string(std::chrono::duration_cast<seconds>(now - started_).count()) +
+                      ",\"status_refused\":" + std::to_string(status_ ? status_->refused() : 0) +
+                      ",\"endpoints\":[";
+    for (size_t i = 0; i < endpoints_.size(); i++) {
+        const Endpoint& e = *endpoints_[i];
+        out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
+               "\",\"bond\":\"" + e.config().bond + "\"";
+        EndpointStats st = e.total_stats();
+        for_each_counter(st, [&out](const char* name, uint64_t value) {
+            out += std::string(",\"") + name + "\":" + std::to_string(value);
+        });
+        // Milliseconds since a frame last came in; -1: never.
+        auto ago = std::chrono::duration_cast<milliseconds>(now - st.last_rx).count();
+        out += ",\"last_rx_ms_ago\":" +
+               std::to_string(st.last_rx == TimePoint{} ? -1 : static_cast<long long>(ago)) + "}";
+    }
+    out += "],\"bonds\":[";
+    for (size_t i = 0; i < router_.bonds().size(); i++) {
+        const Router::Bond& b = router_.bonds()[i];
+        const Endpoint* active = b.active_link < router_.endpoints().size()
+                                     ? router_.endpoints()[b.active_link] : nullptr;
+        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
+               (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
+               (active ? active->name() : "") +
+               "\",\"switches\":" + std::to_string(b.switches);
+        const auto renumbered = renumber_->counters(i);
+        if (!renumbered.empty()) {
+            out += ",\"renumber\":{";
+            for (const auto& [name, value] : renumbered)
+                out += std::string(out.back() == '{' ? "\"" : ",\"") + name + "\":" +
+                       std::to_string(value);
+            out += "}";
+        }
+        out += "}";
+    }
+    return out + "],\"filters\":" + chain_->status_json() + "}";
+}
+
+}  // namespace mavbond

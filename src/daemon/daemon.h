@@ -1,0 +1,119 @@
+// The running gateway: the config, the router, the filter chain, the endpoints and the
+// daemon's own services (status socket, problem reports), on one event loop. SIGHUP reloads
+// the config: what did not change keeps running, untouched.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <variant>
+#include <vector>
+
+#include "config/config.h"
+#include "core/event_loop.h"
+#include "routing/link_events.h"
+#include "routing/local_source.h"
+#include "daemon/metrics_http.h"
+#include "routing/router.h"
+#include "daemon/status_socket.h"
+#include "endpoints/endpoint.h"
+#include "routing/filter_chain.h"
+#include "routing/renumber_stage.h"
+
+namespace mavbond {
+
+constexpr int kExitSoftware = 70;  // EX_SOFTWARE
+constexpr int kExitOsError = 71;   // EX_OSERR: a socket that cannot be bound, ...
+
+/// What the command line says on top of the config file.
+struct DaemonOptions {
+    std::string config_path;
+    std::string log_level;   // "" = the config's
+    std::string plugin_dir;  // "" = the config's, else the compiled-in default
+    bool check_config = false;  // only validate: warnings and errors, no progress lines
+};
+
+/// Per-frame problems are never logged one by one: every report_interval, one line per
+/// endpoint that had any says how many of each.
+class ProblemReport {
+public:
+    void run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval);
+    /// Forgets an endpoint that goes away (a new one by its name starts from zero).
+    void forget(const Endpoint& endpoint) { last_.erase(&endpoint); }
+
+private:
+    std::map<const Endpoint*, EndpointStats> last_;
+};
+
+class Daemon {
+public:
+    /// A failure to start, with the exit code it means.
+    struct StartError {
+        int exit_code;
+        std::string message;
+    };
+
+    /// Loads the config, applies the command line and validates everything, plugins included.
+    /// Nothing is opened yet: --check-config stops here.
+    static std::variant<std::unique_ptr<Daemon>, StartError> prepare(const DaemonOptions& opts,
+                                                                    EventLoop& loop);
+    ~Daemon();
+
+    const Config& config() const { return *config_; }
+    size_t filter_count() const { return chain_->size(); }
+
+    /// Opens the endpoints and the daemon's services and installs the signal handlers.
+    std::optional<StartError> start();
+    /// Runs the loop until SIGINT/SIGTERM; returns the exit code.
+    int run();
+
+    /// Re-reads the config file and applies what changed (SIGHUP). A config that does not load,
+    /// or whose filters cannot be created, is refused and the running one kept. Returns whether
+    /// the new config was applied.
+    bool reload();
+
+    /// Every endpoint's counters, the bonds and each filter's status, as one JSON document.
+    std::string status_document() const;
+
+private:
+    Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config);
+    /// Loads the file and applies the command line's overrides.
+    static Result<std::unique_ptr<Config>> load(const DaemonOptions& opts);
+    /// The chain, seen through the renumbering stage when a bond renumbers.
+    FrameFilter* data_path() const;
+    /// Puts a filter chain (and the renumbering for `bonds`) on the router's path, in place
+    /// of the one before it.
+    void install_filters(std::unique_ptr<FilterChain> chain, const std::vector<BondConfig>& bonds);
+    // The steps of reload(), in order: the endpoints whose declaration changed stop (the
+    // others are returned, running); the new config's endpoints start, kept ones in their
+    // place (returns how many started, how many could not); the global settings apply.
+    std::map<std::string, Endpoint::Ptr> stop_changed_endpoints(const Config& next);
+    std::pair<size_t, size_t> start_endpoints(const Config& next,
+                                              std::map<std::string, Endpoint::Ptr>& kept);
+    void apply_settings(std::unique_ptr<Config> next);
+    /// mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
+    void start_local_source(bool identity_changed);
+    void open_status_socket();
+    void open_metrics();
+    void dump_counters() const;
+
+    DaemonOptions opts_;
+    EventLoop& loop_;
+    std::unique_ptr<Config> config_;
+    Router router_;
+    std::unique_ptr<FilterChain> chain_;
+    std::unique_ptr<RenumberStage> renumber_;  // restarts with the chain
+    std::vector<Endpoint::Ptr> endpoints_;  // config order
+    std::unique_ptr<LocalSource> local_source_;
+    std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
+    std::unique_ptr<StatusSocket> status_;
+    std::unique_ptr<MetricsHttpServer> metrics_;
+    ProblemReport report_;
+    EventLoop::Timer report_timer_;
+    EventLoop::Timer route_timer_;
+    TimePoint started_{};
+};
+
+}  // namespace mavbond

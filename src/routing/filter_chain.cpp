@@ -1,0 +1,387 @@
+#include "routing/filter_chain.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstring>
+
+#include "core/log.h"
+#include "endpoints/endpoint.h"
+#include "mavlink/message_table.h"
+
+namespace mavbond {
+
+struct FilterChain::Instance {
+    const LoadedPlugin* plugin;
+    const FilterConfig* entry;
+    std::unique_ptr<PluginConfig> config;
+    mavbond_host host;
+    mavbond_config view{};
+    void* self = nullptr;
+    uint64_t dropped = 0;
+    bool bad_metric_logged = false;
+};
+
+namespace {
+
+std::string where(const SourceMark& m) {
+    return m.file + ":" + std::to_string(m.line) + ":" + std::to_string(m.column);
+}
+
+uint64_t to_ns(TimePoint t) {
+    return static_cast<uint64_t>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(t.time_since_epoch()).count());
+}
+
+}  // namespace
+
+FilterChain::FilterChain(EventLoop& loop, Router& router) : loop_(loop), router_(router) {}
+
+Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
+                                                         const std::string& plugin_dir,
+                                                         EventLoop& loop, Router& router) {
+    std::unique_ptr<FilterChain> chain(new FilterChain(loop, router));
+    std::map<std::string, uint32_t> members;
+    for (const auto& ep : config.endpoints) {
+        if (!ep.bond.empty())
+            chain->priority_[ep.name] = members[ep.bond]++;
+    }
+    chain->entries_ = config.filters;  // never resized after this: instances point into it
+    for (const auto& entry : chain->entries_) {
+        if (!entry.enabled)
+            continue;
+        std::string at = where(entry.mark) + ": filter '" + entry.plugin + "': ";
+        if (chain->instances_.size() >= 64)
+            return make_error(at + "more than 64 filters");
+        const LoadedPlugin* plugin = nullptr;
+        for (const auto& p : chain->plugins_) {
+            if (p->descriptor().name == entry.plugin)
+                plugin = p.get();
+        }
+        if (!plugin) {
+            auto loaded = LoadedPlugin::load(plugin_dir, entry.plugin);
+            if (!loaded)
+                return make_error(at + loaded.error().message);
+            chain->plugins_.push_back(std::move(loaded.value()));
+            plugin = chain->plugins_.back().get();
+        }
+        auto pc = PluginConfig::create(entry, plugin->descriptor().options, config);
+        if (!pc)
+            return pc.error();
+        auto inst = std::make_unique<Instance>();
+        inst->plugin = plugin;
+        inst->entry = &entry;
+        inst->config = std::move(pc.value());
+        inst->view.config = inst->config.get();
+        inst->host.services = chain.get();
+        int same = 0;
+        for (const auto& other : chain->instances_)
+            same += other->entry->plugin == entry.plugin ? 1 : 0;
+        inst->host.name = same ? entry.plugin + "#" + std::to_string(same + 1) : entry.plugin;
+        char err[512] = "";
+        const mavbond_plugin_descriptor& d = plugin->descriptor();
+        if (d.create(host_api(), &inst->host, &inst->view, &inst->self, err, sizeof err) != 0) {
+            // An option the plugin refused: the message starts where that option's value is
+            // (file:line:column), not at the filter entry.
+            if (inst->config->option_refused() && err[0])
+                return make_error(std::string(err) + " (" + plugin->path() + ": create failed)");
+            return make_error(at + plugin->path() + ": create failed: " + (err[0] ? err : "no reason given"));
+        }
+        log_info("[filter:%s] loaded from %s", inst->host.name.c_str(), plugin->path().c_str());
+        chain->instances_.push_back(std::move(inst));
+    }
+    return chain;
+}
+
+FilterChain::~FilterChain() {
+    alive_.reset();
+    for (auto& inst : instances_) {
+        if (inst->self)
+            inst->plugin->descriptor().destroy(inst->self);
+    }
+    timers_.clear();  // no callback into a plugin after this
+    instances_.clear();
+}
+
+bool FilterChain::in_scope(const Instance& inst, const Endpoint& endpoint) const {
+    const FilterConfig& e = *inst.entry;
+    if (e.bonds.empty() && e.endpoints.empty())
+        return true;
+    const std::string& bond = endpoint.config().bond;
+    return (!bond.empty() && std::find(e.bonds.begin(), e.bonds.end(), bond) != e.bonds.end()) ||
+           std::find(e.endpoints.begin(), e.endpoints.end(), endpoint.config().name) != e.endpoints.end();
+}
+
+void FilterChain::on_endpoint(Endpoint& endpoint, bool added) {
+    uint32_t id = endpoint.id();
+    if (id >= links_.size())
+        links_.resize(id + 1);
+    LinkView& v = links_[id];
+    if (added) {
+        v.endpoint = &endpoint;
+        v.name = endpoint.name();
+        v.link = mavbond_link{};
+        v.link.struct_size = sizeof(mavbond_link);
+        v.link.id = id;
+        v.link.name = v.name.c_str();
+        uint32_t bond = router_.bond_of(endpoint);
+        v.link.bond_id = bond == Router::kNoBond ? MAVBOND_NO_BOND : bond;
+        v.link.bond_name = bond == Router::kNoBond ? nullptr : router_.bonds()[bond].name.c_str();
+        // Priority: the place among the bond's members in the config (peers share theirs).
+        auto p = priority_.find(endpoint.config().name);
+        v.link.priority = p == priority_.end() ? 0 : p->second;
+        v.positions.clear();
+        v.scope_mask = 0;
+        for (size_t i = 0; i < instances_.size(); i++) {
+            if (in_scope(*instances_[i], endpoint))
+                v.scope_mask |= uint64_t{1} << i;
+        }
+    }
+    link_list_.clear();
+    for (const auto& l : links_) {
+        if (l.endpoint && (added || &l != &v))
+            link_list_.push_back(&l.link);
+    }
+    for (size_t i = 0; i < instances_.size(); i++) {
+        const auto& d = instances_[i]->plugin->descriptor();
+        if (d.on_link && (v.scope_mask >> i & 1))
+            d.on_link(instances_[i]->self, &v.link, added ? MAVBOND_LINK_ADDED : MAVBOND_LINK_REMOVED);
+    }
+    if (!added)
+        v.endpoint = nullptr;
+}
+
+mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
+    mavbond_frame f{};
+    f.struct_size = sizeof f;
+    f.version = frame.version;
+    f.incompat_flags = frame.incompat_flags;
+    f.seq = frame.seq;
+    f.sysid = frame.sysid;
+    f.compid = frame.compid;
+    f.crc_checked = frame.crc_checked;
+    f.target_system = frame.target_system;
+    f.target_component = frame.target_component;
+    f.msgid = frame.msgid;
+    f.raw = frame.bytes.data();
+    f.raw_len = static_cast<uint32_t>(frame.bytes.size());
+    f.payload = frame.payload.data();
+    f.payload_len = static_cast<uint32_t>(frame.payload.size());
+    f.timestamp_offset = frame.info ? frame.info->timestamp_ofs : -1;
+    f.timestamp_size = frame.info ? frame.info->timestamp_size : 0;
+    f.timestamp_us = frame.info ? frame.info->timestamp_us : 0;
+    f.rx_time_ns = to_ns(rx_time);
+    return f;
+}
+
+FrameFilter::Verdict FilterChain::on_ingress(const Frame& frame, Endpoint& from, TimePoint now) {
+    LinkView& v = links_[from.id()];
+    notes_ = mavbond_frame_notes{};
+    notes_.struct_size = sizeof notes_;
+    if (v.scope_mask == 0)
+        return Verdict::Pass;
+    mavbond_frame f = to_c_frame(frame, now);
+    StreamStep step = v.positions.track(frame.sysid, frame.compid, frame.seq);
+    f.stream_pos = step.pos;
+    f.stream_lost = step.lost;
+    f.stream_flags = step.flags;
+    mavbond_frame_notes& notes = notes_;
+    for (size_t i = 0; i < instances_.size(); i++) {
+        if (!(v.scope_mask >> i & 1))
+            continue;
+        Instance& inst = *instances_[i];
+        auto hook = inst.plugin->descriptor().on_ingress;
+        if (!hook)
+            continue;
+        bool already_dropped = notes.flags & MAVBOND_NOTE_DROPPED;
+        if (hook(inst.self, &f, &notes, &v.link) == MAVBOND_DROP && !already_dropped) {
+            inst.dropped++;
+            notes.flags |= MAVBOND_NOTE_DROPPED;
+        }
+    }
+    return notes.flags & MAVBOND_NOTE_DROPPED ? Verdict::Drop : Verdict::Pass;
+}
+
+FrameFilter::Verdict FilterChain::on_egress(const Frame& frame, Endpoint& to, TimePoint now) {
+    const LinkView& v = links_[to.id()];
+    if (v.scope_mask == 0)
+        return Verdict::Pass;
+    mavbond_frame f{};
+    bool built = false;
+    for (size_t i = 0; i < instances_.size(); i++) {
+        Instance& inst = *instances_[i];
+        auto hook = inst.plugin->descriptor().on_egress;
+        if (!hook || !(v.scope_mask >> i & 1))
+            continue;
+        if (!built) {
+            f = to_c_frame(frame, now);
+            built = true;
+        }
+        if (hook(inst.self, &f, &v.link) == MAVBOND_DROP) {
+            inst.dropped++;
+            return Verdict::Drop;
+        }
+    }
+    return Verdict::Pass;
+}
+
+std::string FilterChain::status_json() const {
+    std::string out = "[";
+    std::vector<char> buf(16384);
+    for (size_t i = 0; i < instances_.size(); i++) {
+        const Instance& inst = *instances_[i];
+        out += i ? "," : "";
+        out += "{\"name\":\"" + inst.host.name + "\",\"plugin\":\"" + inst.entry->plugin +
+               "\",\"dropped\":" + std::to_string(inst.dropped);
+        if (auto status = inst.plugin->descriptor().status_json) {
+            size_t need = status(inst.self, buf.data(), buf.size());
+            if (need >= buf.size()) {
+                buf.resize(need + 1);
+                need = status(inst.self, buf.data(), buf.size());
+            }
+            if (need > 0 && need < buf.size())
+                out += ",\"status\":" + std::string(buf.data(), need);
+        }
+        out += "}";
+    }
+    return out + "]";
+}
+
+namespace {
+
+/// What the metrics sink needs to know about the instance whose samples it takes.
+struct MetricSink {
+    MetricSet& out;
+    const std::string& plugin;
+    const std::string& instance;
+    bool& bad_logged;
+
+    static void take(void* ctx, const mavbond_metric_sample* s) noexcept {
+        auto& self = *static_cast<MetricSink*>(ctx);
+        try {
+            std::string why = self.add(s);
+            if (!why.empty() && !self.bad_logged) {
+                self.bad_logged = true;
+                log_warning("[filter:%s] metric skipped: %s (further ones are not logged)",
+                            self.instance.c_str(), why.c_str());
+            }
+        } catch (...) {
+            // Out of memory in a scrape: that sample is missing, the daemon goes on.
+        }
+    }
+
+    /// Adds one sample; the reason when it breaks a rule.
+    std::string add(const mavbond_metric_sample* s) {
+        if (!s || s->struct_size < sizeof(mavbond_metric_sample) || !s->name || !s->help)
+            return "a sample without name or help, or of an older struct size";
+        std::string name = "mavbond_" + plugin + "_" + s->name;
+        for (const char* c = s->name; *c; c++) {
+            if (!(isalnum(static_cast<unsigned char>(*c)) || *c == '_'))
+                return name + ": the name may hold only a-z A-Z 0-9 _";
+        }
+        if (s->label_count > MAVBOND_METRIC_MAX_LABELS || (s->label_count && !s->labels))
+            return name + ": more than " + std::to_string(MAVBOND_METRIC_MAX_LABELS) + " labels";
+        MetricLabels labels{{"filter", instance}};
+        for (uint32_t i = 0; i < s->label_count; i++) {
+            const mavbond_label& l = s->labels[i];
+            if (!l.name || !l.value)
+                return name + ": a label without name or value";
+            if (std::strcmp(l.name, "filter") == 0)
+                return name + ": the label 'filter' is the host's";
+            labels.emplace_back(l.name, l.value);
+        }
+        Result<void> r;
+        if (s->type == MAVBOND_METRIC_COUNTER)
+            r = out.counter(name, s->help, s->count, labels);
+        else if (s->type == MAVBOND_METRIC_GAUGE)
+            r = out.gauge(name, s->help, s->value, labels);
+        else
+            return name + ": unknown type " + std::to_string(static_cast<int>(s->type));
+        return r ? "" : r.error().message;
+    }
+};
+
+}  // namespace
+
+void FilterChain::collect_metrics(MetricSet& out) const {
+    const char* help = "Frames a filter dropped (its own verdicts).";
+    out.declare("mavbond_filter_dropped", help, MetricSet::Type::Counter);
+    for (const auto& inst : instances_) {
+        out.counter("mavbond_filter_dropped", help, inst->dropped, {{"filter", inst->host.name}, {"plugin", inst->entry->plugin}});
+        if (auto hook = inst->plugin->descriptor().metrics) {
+            MetricSink sink{out, inst->entry->plugin, inst->host.name, inst->bad_metric_logged};
+            hook(inst->self, MetricSink::take, &sink);
+        }
+    }
+}
+
+// --- HostServices --------------------------------------------------------------------------
+
+uint64_t FilterChain::now_ns() { return to_ns(router_.arrival_clock(loop_.now())); }
+
+uint64_t FilterChain::timer_add(uint64_t period_ns, std::function<bool()> fn) {
+    uint64_t id = next_timer_++;
+    Duration period{static_cast<Duration::rep>(period_ns)};
+    timers_[id] = loop_.schedule(period, [this, id, period, fn = std::move(fn)] {
+        if (fn())
+            return period;
+        defer_erase(id);
+        return Duration::zero();
+    });
+    return id;
+}
+
+// Erased after this dispatch round: a timer may end from inside its own callback. The chain
+// may be gone by then (a reload replaced it), hence the weak token.
+void FilterChain::defer_erase(uint64_t id) {
+    loop_.defer([this, id, alive = std::weak_ptr<void>(alive_)] {
+        if (!alive.expired())
+            timers_.erase(id);
+    });
+}
+
+void FilterChain::timer_cancel(uint64_t id) {
+    auto it = timers_.find(id);
+    if (it != timers_.end())
+        it->second.cancel();
+    defer_erase(id);
+}
+
+size_t FilterChain::links(const mavbond_link** out, size_t max) {
+    for (size_t i = 0; i < link_list_.size() && i < max; i++)
+        out[i] = link_list_[i];
+    return link_list_.size();
+}
+
+int FilterChain::bond_by_name(const std::string& name, uint32_t* out) {
+    uint32_t b = router_.bond_index(name);
+    if (b == Router::kNoBond)
+        return -ENOENT;
+    *out = b;
+    return 0;
+}
+
+int FilterChain::set_active_link(uint32_t bond_id, uint32_t link_id) {
+    return router_.set_active_link(bond_id, link_id) ? 0 : -EINVAL;
+}
+
+int FilterChain::link_counters(uint32_t link_id, mavbond_link_counters* out) {
+    if (link_id >= links_.size() || !links_[link_id].endpoint)
+        return -ENOENT;
+    const EndpointStats& s = links_[link_id].endpoint->stats();
+    *out = mavbond_link_counters{sizeof(mavbond_link_counters), s.rx.frames, s.rx.bytes,
+                                 s.rx.crc_errors, s.rx.garbage_bytes, s.rx.unknown_ids,
+                                 s.tx_frames, s.tx_bytes, s.tx_dropped};
+    return 0;
+}
+
+int FilterChain::bond_state(uint32_t bond_id, mavbond_bond_state* out) {
+    if (bond_id >= router_.bonds().size())
+        return -ENOENT;
+    const Router::Bond& b = router_.bonds()[bond_id];
+    *out = mavbond_bond_state{sizeof(mavbond_bond_state), b.active_link, b.switches,
+                              static_cast<uint8_t>(b.tx_active)};
+    return 0;
+}
+
+}  // namespace mavbond

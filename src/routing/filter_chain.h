@@ -1,0 +1,85 @@
+// The chain of filter plugins the config names, in config order, on the router's data path.
+// Ingress: every filter in scope sees the frame; after one drops it, the rest still observe it
+// (flagged MAVBOND_NOTE_DROPPED, verdicts ignored), so stats count what dedup dropped and dedup
+// never learns from a frame another filter dropped. Egress: the first drop stops the frame.
+#pragma once
+
+#include <deque>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "config/config.h"
+#include "core/event_loop.h"
+#include "daemon/prometheus.h"
+#include "routing/router.h"
+#include "routing/plugin_host.h"
+#include "routing/plugin_loader.h"
+#include "routing/stream_positions.h"
+
+namespace mavbond {
+
+class FilterChain : public FrameFilter, private HostServices {
+public:
+    /// Loads every enabled `filters:` entry's plugin from plugin_dir and creates its instance.
+    /// Errors name the config entry (file:line:column) and the plugin file.
+    static Result<std::unique_ptr<FilterChain>> create(const Config& config,
+                                                       const std::string& plugin_dir,
+                                                       EventLoop& loop, Router& router);
+    ~FilterChain() override;
+
+    Verdict on_ingress(const Frame& frame, Endpoint& from, TimePoint now) override;
+    Verdict on_egress(const Frame& frame, Endpoint& to, TimePoint now) override;
+    void on_endpoint(Endpoint& endpoint, bool added) override;
+
+    size_t size() const { return instances_.size(); }
+    /// What the filters noted on the frame the last on_ingress() saw (zero when none was in
+    /// scope): the renumbering stage reads dedup's hash and duplicate notes here.
+    const mavbond_frame_notes& ingress_notes() const { return notes_; }
+    /// {"filters":[{"plugin":..,"dropped":..,"status":{...}}]} for the status socket.
+    std::string status_json() const;
+    /// Each filter's drop count and what its plugin's metrics hook gives: samples named
+    /// mavbond_PLUGIN_NAME and labelled filter="INSTANCE". A sample that breaks a rule of the
+    /// ABI is skipped, and logged once per filter.
+    void collect_metrics(MetricSet& out) const;
+
+private:
+    struct Instance;
+    struct LinkView {
+        mavbond_link link{};
+        std::string name;
+        Endpoint* endpoint = nullptr;
+        uint64_t scope_mask = 0;  // bit i: instance i applies to this link
+        StreamPositions positions;  // of the sources heard on this link
+    };
+    FilterChain(EventLoop& loop, Router& router);
+    bool in_scope(const Instance& inst, const Endpoint& endpoint) const;
+    static mavbond_frame to_c_frame(const Frame& frame, TimePoint rx_time);
+
+    // HostServices (what the plugins' host API calls land on)
+    uint64_t now_ns() override;
+    uint64_t timer_add(uint64_t period_ns, std::function<bool()> fn) override;
+    void timer_cancel(uint64_t id) override;
+    size_t links(const mavbond_link** out, size_t max) override;
+    int bond_by_name(const std::string& name, uint32_t* out) override;
+    int set_active_link(uint32_t bond_id, uint32_t link_id) override;
+    int link_counters(uint32_t link_id, mavbond_link_counters* out) override;
+    int bond_state(uint32_t bond_id, mavbond_bond_state* out) override;
+
+    EventLoop& loop_;
+    Router& router_;
+    std::vector<FilterConfig> entries_;  // the chain's own copy: a reload may replace the Config
+    std::vector<std::unique_ptr<LoadedPlugin>> plugins_;  // destroyed after the instances
+    std::vector<std::unique_ptr<Instance>> instances_;
+    std::deque<LinkView> links_;  // index = endpoint id; a deque keeps the views where they are
+    std::map<std::string, uint32_t> priority_;           // endpoint name -> place in its bond
+    std::vector<const mavbond_link*> link_list_;         // registered links, id order
+    std::map<uint64_t, EventLoop::Timer> timers_;
+    uint64_t next_timer_ = 1;
+    std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the chain
+    void defer_erase(uint64_t timer_id);
+    mavbond_frame_notes notes_{};
+};
+
+}  // namespace mavbond

@@ -1,0 +1,65 @@
+#include "routing/local_source.h"
+
+#include <algorithm>
+#include <array>
+
+#include "core/log.h"
+#include "routing/router.h"
+#include "mavlink/frame_parser.h"
+#include "mavlink/frame_writer.h"
+
+namespace mavbond {
+
+namespace {
+constexpr uint32_t kMsgHeartbeat = 0;
+constexpr uint32_t kMsgStatustext = 253;
+constexpr uint8_t kTypeOnboardController = 18;  // MAV_TYPE_ONBOARD_CONTROLLER
+constexpr uint8_t kAutopilotInvalid = 8;        // MAV_AUTOPILOT_INVALID: not a flight controller
+constexpr uint8_t kStateActive = 4;             // MAV_STATE_ACTIVE
+constexpr uint8_t kMavlinkVersion = 3;
+constexpr size_t kStatustextLen = 50;           // char text[50], NUL-terminated only if shorter
+}  // namespace
+
+LocalSource::LocalSource(const IdentityConfig& identity, EventLoop& loop, Router& router)
+    : identity_(identity), loop_(loop), router_(router) {
+    if (identity.heartbeat > Duration::zero()) {
+        heartbeat_timer_ = loop.schedule(identity.heartbeat, [this] {
+            send_heartbeat();
+            return identity_.heartbeat;
+        });
+    }
+}
+
+void LocalSource::send_heartbeat() {
+    // custom_mode (uint32), type, autopilot, base_mode, system_status, mavlink_version
+    const uint8_t payload[9] = {0, 0, 0, 0, kTypeOnboardController, kAutopilotInvalid, 0,
+                                kStateActive, kMavlinkVersion};
+    send(kMsgHeartbeat, payload, sizeof payload);
+}
+
+void LocalSource::send_statustext(Severity severity, std::string_view text) {
+    // severity, text[50]; the extensions id and chunk_seq stay 0 (a message in one piece).
+    std::array<uint8_t, 1 + kStatustextLen + 3> payload{};
+    payload[0] = static_cast<uint8_t>(severity);
+    std::copy_n(text.begin(), std::min(text.size(), kStatustextLen), payload.begin() + 1);
+    send(kMsgStatustext, payload.data(), payload.size());
+}
+
+void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len) {
+    std::array<uint8_t, kMaxFrameLen> buf;
+    size_t n = write_frame_v2(buf, FrameSource{identity_.sysid, identity_.compid, seq_}, msgid,
+                              std::span<const uint8_t>(payload, len));
+    // Parsed back like any received frame: the router gets a Frame as complete as theirs.
+    ParserCounters counters;
+    DatagramParser parser(std::span<const uint8_t>(buf.data(), n), UnknownIdPolicy::Drop, counters);
+    Frame frame;
+    if (n == 0 || !parser.next(frame)) {
+        log_error("local frame msgid=%u could not be built", msgid);  // a bug, never input
+        return;
+    }
+    seq_++;
+    frames_sent_++;
+    router_.inject(frame, loop_.now());
+}
+
+}  // namespace mavbond
