@@ -15,7 +15,7 @@
 
 #include "allocations.h"
 #include "fake_host.h"
-#include "filters/stream_positions.h"
+#include "routing/stream_positions.h"
 #include "mavbond/plugin.h"
 
 extern "C" const mavbond_plugin_descriptor* mavbond_plugin_entry(void);
