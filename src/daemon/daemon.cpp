@@ -20,7 +20,7 @@ constexpr Duration kReloadFinishBound = milliseconds(50);
 /// lines, which tools parse).
 std::string counters_line(const Endpoint& e, const char* what = "stats") {
     std::string line = std::string(what) + " endpoint=" + e.name() + " kind=" + e.kind();
-    for_each_counter(e.total_stats(), [&line](const char* name, uint64_t value) {
+    for_each_counter(e.total_counters(), [&line](const char* name, uint64_t value) {
         line += std::string(" ") + name + "=" + std::to_string(value);
     });
     return line;
@@ -74,8 +74,8 @@ const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
 void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval) {
     double secs = std::chrono::duration<double>(interval).count();
     for (const auto& e : endpoints) {
-        EndpointStats now = e->total_stats();
-        EndpointStats& was = last_[e.get()];
+        LinkCounters now = e->total_counters();
+        LinkCounters& was = last_[e.get()];
         std::string what;
         auto add = [&what](uint64_t delta, const char* label) {
             if (delta == 0)
@@ -104,7 +104,7 @@ void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration in
 
 Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
     : opts_(opts), loop_(loop), config_(std::move(config)),
-      router_(loop, config_->route_timeout, config_->bonds) {}
+      router_(loop, config_->route_timeout) {}
 
 Daemon::~Daemon() {
     link_events_.reset();
@@ -142,12 +142,8 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
     auto chain = FilterChain::create(*d->config_, d->config_->plugin_dir, loop, d->router_);
     if (!chain)
         return StartError{kExitConfig, chain.error().message};
-    d->install_filters(std::move(chain.value()), d->config_->bonds);
+    d->install_filters(std::move(chain.value()), *d->config_);
     return d;
-}
-
-FrameFilter* Daemon::data_path() const {
-    return renumber_->active() ? static_cast<FrameFilter*>(renumber_.get()) : chain_.get();
 }
 
 void Daemon::start_local_source(bool identity_changed) {
@@ -155,8 +151,8 @@ void Daemon::start_local_source(bool identity_changed) {
     if (identity_changed || !local_source_)
         local_source_ = std::make_unique<LocalSource>(config_->identity, loop_, router_);
     if (config_->link_events.enabled)
-        link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, endpoints_,
-                                                          router_, loop_, *local_source_);
+        link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, router_, loop_,
+                                                          *local_source_);
 }
 
 std::optional<Daemon::StartError> Daemon::start() {
@@ -213,7 +209,7 @@ int Daemon::run() {
     for (const auto& e : endpoints_)
         e->finish(finish_by);
     dump_counters();
-    renumber_->log_summary();
+    log_renumbering();
     log_notice("exit: routed %llu frames, %llu without a destination, %llu held back for arrival "
                "order; peak RSS %ld KiB",
                (unsigned long long)router_.frames_routed(),
@@ -243,7 +239,7 @@ void Daemon::open_metrics() {
     auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout},
                                      loop_, [this] {
                                          return metrics_document(endpoints_, router_, *chain_,
-                                                                 *renumber_, started_, loop_.now());
+                                                                 started_, loop_.now());
                                      });
     // As with the status socket: without its metrics the daemon still routes.
     if (m)
@@ -286,7 +282,7 @@ bool Daemon::reload() {
     std::map<std::string, Endpoint::Ptr> kept = stop_changed_endpoints(*next);
     const size_t kept_count = kept.size();
     if (next_chain)
-        install_filters(std::move(next_chain), next->bonds);  // hears of every endpoint kept
+        install_filters(std::move(next_chain), *next);  // hears of every link kept
     router_.set_route_timeout(next->route_timeout);
     const auto [started, failed] = start_endpoints(*next, kept);
     apply_settings(std::move(next));
@@ -297,16 +293,22 @@ bool Daemon::reload() {
     return true;
 }
 
-void Daemon::install_filters(std::unique_ptr<FilterChain> chain,
-                             const std::vector<BondConfig>& bonds) {
+void Daemon::install_filters(std::unique_ptr<FilterChain> chain, const Config& config) {
     router_.set_filter(nullptr);
-    if (renumber_)
-        renumber_->log_summary();
-    renumber_.reset();
+    log_renumbering();
     chain_ = std::move(chain);
-    renumber_ = std::make_unique<RenumberStage>(*chain_, router_, bonds);
-    router_.replace_bonds(bonds);
-    router_.set_filter(data_path());
+    router_.replace_bonds(config);
+    router_.set_filter(chain_.get());
+}
+
+void Daemon::log_renumbering() const {
+    for (const Bond& bond : router_.bonds()) {
+        std::string line;
+        for (const auto& [name, value] : bond.renumber_counters())
+            line += std::string(" ") + name + "=" + std::to_string(value);
+        if (!line.empty())
+            log_notice("renumber bond=%s%s", bond.name().c_str(), line.c_str());
+    }
 }
 
 std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config& next) {
@@ -376,7 +378,7 @@ std::string Daemon::status_document() const {
         const Endpoint& e = *endpoints_[i];
         out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
                "\",\"bond\":\"" + e.config().bond + "\"";
-        EndpointStats st = e.total_stats();
+        LinkCounters st = e.total_counters();
         for_each_counter(st, [&out](const char* name, uint64_t value) {
             out += std::string(",\"") + name + "\":" + std::to_string(value);
         });
@@ -387,14 +389,13 @@ std::string Daemon::status_document() const {
     }
     out += "],\"bonds\":[";
     for (size_t i = 0; i < router_.bonds().size(); i++) {
-        const Router::Bond& b = router_.bonds()[i];
-        const Endpoint* active = b.active_link < router_.endpoints().size()
-                                     ? router_.endpoints()[b.active_link] : nullptr;
-        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
-               (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" +
+        const Bond& b = router_.bonds()[i];
+        const Link* active = router_.link(b.active_link());
+        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name() + "\",\"tx\":\"" +
+               (b.tx_active() ? "active" : "broadcast") + "\",\"active\":\"" +
                (active ? active->name() : "") +
-               "\",\"switches\":" + std::to_string(b.switches);
-        const auto renumbered = renumber_->counters(i);
+               "\",\"switches\":" + std::to_string(b.switches());
+        const auto renumbered = b.renumber_counters();
         if (!renumbered.empty()) {
             out += ",\"renumber\":{";
             for (const auto& [name, value] : renumbered)

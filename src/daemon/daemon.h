@@ -20,7 +20,6 @@
 #include "daemon/status_socket.h"
 #include "endpoints/endpoint.h"
 #include "routing/filter_chain.h"
-#include "routing/renumber_stage.h"
 
 namespace mavbond {
 
@@ -44,7 +43,7 @@ public:
     void forget(const Endpoint& endpoint) { last_.erase(&endpoint); }
 
 private:
-    std::map<const Endpoint*, EndpointStats> last_;
+    std::map<const Endpoint*, LinkCounters> last_;
 };
 
 class Daemon {
@@ -81,11 +80,11 @@ private:
     Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config);
     /// Loads the file and applies the command line's overrides.
     static Result<std::unique_ptr<Config>> load(const DaemonOptions& opts);
-    /// The chain, seen through the renumbering stage when a bond renumbers.
-    FrameFilter* data_path() const;
-    /// Puts a filter chain (and the renumbering for `bonds`) on the router's path, in place
-    /// of the one before it.
-    void install_filters(std::unique_ptr<FilterChain> chain, const std::vector<BondConfig>& bonds);
+    /// Puts a filter chain on the router's path, in place of the one before it, and the bonds
+    /// of `config` (their renumbering starts afresh with them).
+    void install_filters(std::unique_ptr<FilterChain> chain, const Config& config);
+    /// One log line per renumbering bond: what it did.
+    void log_renumbering() const;
     // The steps of reload(), in order: the endpoints whose declaration changed stop (the
     // others are returned, running); the new config's endpoints start, kept ones in their
     // place (returns how many started, how many could not); the global settings apply.
@@ -104,7 +103,6 @@ private:
     std::unique_ptr<Config> config_;
     Router router_;
     std::unique_ptr<FilterChain> chain_;
-    std::unique_ptr<RenumberStage> renumber_;  // restarts with the chain
     std::vector<Endpoint::Ptr> endpoints_;  // config order
     std::unique_ptr<LocalSource> local_source_;
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_

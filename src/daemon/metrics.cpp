@@ -4,7 +4,6 @@
 
 #include "routing/router.h"
 #include "routing/filter_chain.h"
-#include "routing/renumber_stage.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -49,8 +48,7 @@ const std::map<std::string, const char*>& renumber_help() {
 }  // namespace
 
 MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
-                           const FilterChain& chain, const RenumberStage& renumber,
-                           TimePoint started, TimePoint now) {
+                           const FilterChain& chain, TimePoint started, TimePoint now) {
     MetricSet set;
     set.gauge("mavbond_build_info", "Always 1; the version in a label.", 1,
               {{"version", MAVBOND_VERSION}});
@@ -61,7 +59,7 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
     for (const auto& e : endpoints) {
         MetricLabels labels{{"endpoint", e->name()}, {"kind", e->kind()},
                             {"bond", e->config().bond}};
-        EndpointStats stats = e->total_stats();
+        LinkCounters stats = e->total_counters();
         for_each_counter(stats, [&](const char* name, uint64_t value) {
             auto help = counter_help().find(name);
             set.counter(std::string("mavbond_endpoint_") + name,
@@ -85,20 +83,21 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
     const char* active_help = "1 for the active link of a bond (tx: active), 0 for its others.";
     set.declare("mavbond_bond_active_link", active_help, MetricSet::Type::Gauge);
     for (size_t b = 0; b < router.bonds().size(); b++) {
-        const Router::Bond& bond = router.bonds()[b];
-        set.counter("mavbond_bond_switches", "Changes of a bond's active link.", bond.switches,
-                    {{"bond", bond.name}});
+        const Bond& bond = router.bonds()[b];
+        set.counter("mavbond_bond_switches", "Changes of a bond's active link.", bond.switches(),
+                    {{"bond", bond.name()}});
         set.gauge("mavbond_bond_tx_active", "1 when the bond sends on its active link only.",
-                  bond.tx_active ? 1 : 0, {{"bond", bond.name}});
-        for (const Endpoint* link : router.endpoints()) {
+                  bond.tx_active() ? 1 : 0, {{"bond", bond.name()}});
+        for (LinkId id = 0; id < router.link_id_bound(); id++) {
+            const Link* link = router.link(id);
             if (link && router.bond_of(*link) == b)
                 set.gauge("mavbond_bond_active_link", active_help,
-                          link->id() == bond.active_link ? 1 : 0,
-                          {{"bond", bond.name}, {"link", link->name()}});
+                          id == bond.active_link() ? 1 : 0,
+                          {{"bond", bond.name()}, {"link", link->name()}});
         }
-        for (const auto& [name, value] : renumber.counters(b))
+        for (const auto& [name, value] : bond.renumber_counters())
             set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
-                        {{"bond", bond.name}});
+                        {{"bond", bond.name()}});
     }
     chain.collect_metrics(set);
     return set;

@@ -6,17 +6,15 @@
 #include <vector>
 
 #include "core/clock.h"
-#include "daemon/prometheus.h"
+#include "core/metric_set.h"
 #include "endpoints/endpoint.h"
 
 namespace mavbond {
 
 class Router;
 class FilterChain;
-class RenumberStage;
 
 MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Router& router,
-                           const FilterChain& chain, const RenumberStage& renumber,
-                           TimePoint started, TimePoint now);
+                           const FilterChain& chain, TimePoint started, TimePoint now);
 
 }  // namespace mavbond

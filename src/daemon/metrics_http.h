@@ -13,7 +13,7 @@
 
 #include "core/clock.h"
 #include "core/event_loop.h"
-#include "daemon/prometheus.h"
+#include "core/metric_set.h"
 #include "core/result.h"
 #include "core/unique_fd.h"
 

@@ -8,27 +8,6 @@
 
 namespace mavbond {
 
-EndpointStats& EndpointStats::operator+=(const EndpointStats& o) {
-    rx.frames += o.rx.frames;
-    rx.bytes += o.rx.bytes;
-    rx.crc_errors += o.rx.crc_errors;
-    rx.garbage_bytes += o.rx.garbage_bytes;
-    rx.unknown_ids += o.rx.unknown_ids;
-    rx.bad_flags += o.rx.bad_flags;
-    rx_filtered += o.rx_filtered;
-    rx_overflows += o.rx_overflows;
-    tx_frames += o.tx_frames;
-    tx_bytes += o.tx_bytes;
-    tx_filtered += o.tx_filtered;
-    tx_dropped += o.tx_dropped;
-    tx_errors += o.tx_errors;
-    sig_unsigned += o.sig_unsigned;
-    sig_bad += o.sig_bad;
-    sig_replay += o.sig_replay;
-    last_rx = std::max(last_rx, o.last_rx);
-    return *this;
-}
-
 bool MessageFilter::passes(uint32_t msgid) const {
     auto has = [msgid](const std::vector<uint32_t>& list) {
         return std::find(list.begin(), list.end(), msgid) != list.end();
@@ -39,8 +18,9 @@ bool MessageFilter::passes(uint32_t msgid) const {
 }
 
 Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
-                   const Endpoint* parent)
-    : config_(config), name_(std::move(name)), tx_(mode, config.tx_queue_bytes),
+                   const Endpoint* parent, Role role)
+    : Link(std::move(name), config.name, config.bond, role == Role::Recorder), config_(config),
+      tx_(mode, config.tx_queue_bytes),
       filter_in_(config_.filter_in), filter_out_(config_.filter_out) {
     if (parent)
         verifier_ = parent->verifier_;
@@ -57,14 +37,25 @@ void Endpoint::defer(EventLoop& loop, std::function<void()> fn) {
     });
 }
 
-bool Endpoint::accept_in(const Frame& frame) {
-    if (filter_in_.empty() || filter_in_.passes(frame.msgid))
-        return true;
-    stats_.rx_filtered++;
-    return false;
+void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
+    stats_.last_rx = arrival;
+    if (verifier_ && !authentic(frame))
+        return;
+    bool accepted = filter_in_.empty() || filter_in_.passes(frame.msgid);
+    if (!accepted)
+        stats_.rx_filtered++;
+    batch.add(frame, *this, arrival, accepted);
 }
 
-bool Endpoint::check_signature(const Frame& frame) {
+void Endpoint::receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
+                                TimePoint arrival, UnknownIdPolicy policy) {
+    DatagramParser parser(datagram, policy, stats_.rx);
+    Frame frame;
+    while (parser.next(frame))
+        receive(batch, frame, arrival);
+}
+
+bool Endpoint::authentic(const Frame& frame) {
     switch (verifier_->check(frame)) {
     case SignatureVerifier::Verdict::Accept:
         return true;

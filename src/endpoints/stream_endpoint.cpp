@@ -8,19 +8,18 @@
 #include <cstring>
 
 #include "core/log.h"
-#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {
 
 StreamEndpoint::StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
-                               Router& router, UnknownIdPolicy policy, const Endpoint* parent)
-    : Endpoint(config, std::move(name), TxQueue::Mode::Stream, parent), loop_(loop), router_(router),
+                               FrameSink& sink, UnknownIdPolicy policy, const Endpoint* parent)
+    : Endpoint(config, std::move(name), TxQueue::Mode::Stream, parent), loop_(loop), sink_(sink),
       parser_(policy, 8192) {}
 
 StreamEndpoint::~StreamEndpoint() = default;
 
-Result<void> StreamEndpoint::attach(UniqueFd fd) {
+Result<void> StreamEndpoint::start_stream(UniqueFd fd) {
     auto w = loop_.watch(fd.get(), EPOLLIN | EPOLLRDHUP,
                          [this](uint32_t events) { on_events(events); });
     if (!w)
@@ -31,7 +30,7 @@ Result<void> StreamEndpoint::attach(UniqueFd fd) {
     return {};
 }
 
-void StreamEndpoint::detach() {
+void StreamEndpoint::stop_stream() {
     watch_.reset();
     fd_.reset();
     clear_tx();
@@ -53,7 +52,7 @@ void StreamEndpoint::on_backlog(bool backlog) {
 void StreamEndpoint::on_write_error(int err) {
     // The peer is gone, but what it sent before going may still wait unread (a TCP client
     // that sent a frame and closed): read it, then close. After this round, not here: the
-    // router may be in the middle of a batch.
+    // sink may be in the middle of a batch.
     if (write_failed_)
         return;
     write_failed_ = true;
@@ -64,7 +63,7 @@ void StreamEndpoint::on_write_error(int err) {
             return;  // the read path saw the end meanwhile and closed
         read_frames();
         if (fd_) {
-            detach();
+            stop_stream();
             on_disconnect("write failed: " + errno_text(err));
         }
     });
@@ -99,13 +98,12 @@ void StreamEndpoint::read_frames() {
             TimePoint arrival = Clock::now();
             parser_.commit(static_cast<size_t>(n));
             Frame frame;
-            while (parser_.next(frame)) {
-                router_.handle_frame(*this, frame, arrival);
-                stats_.last_rx = arrival;
-            }
+            while (parser_.next(frame))
+                receive(frames_, frame, arrival);
+            frames_.submit();
             stats_.rx = parser_.counters();
-            // Frames lent to other endpoints point into the parser: send before reading on.
-            router_.end_batch();
+            // Frames lent to other links point into the parser: sent before reading on.
+            sink_.end_batch();
             if (static_cast<size_t>(n) < area.size())
                 return;
             continue;
@@ -115,7 +113,7 @@ void StreamEndpoint::read_frames() {
         if (n < 0 && errno == EINTR)
             continue;
         std::string reason = n == 0 ? "closed by peer" : errno_text(errno);
-        detach();
+        stop_stream();
         on_disconnect(reason);
         return;
     }

@@ -26,17 +26,17 @@ private:
 
 class StreamEndpoint : public Endpoint {
 public:
-    StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, Router& router,
+    StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop, FrameSink& sink,
                    UnknownIdPolicy policy, const Endpoint* parent = nullptr);
     ~StreamEndpoint() override;
     bool ready() const override { return fd_.valid() && !write_failed_; }
 
 protected:
     /// Starts reading and writing on a connected/opened fd.
-    Result<void> attach(UniqueFd fd);
+    Result<void> start_stream(UniqueFd fd);
     /// Stops using the fd: closes it, drops what was queued (a new connection starts at a
     /// frame boundary). Safe inside the endpoint's own handlers.
-    void detach();
+    void stop_stream();
     /// The stream ended or failed: subclasses reconnect, reopen or go away.
     virtual void on_disconnect(const std::string& reason) = 0;
 
@@ -46,7 +46,7 @@ protected:
     bool wait_writable(TimePoint deadline) override;
 
     EventLoop& loop_;
-    Router& router_;
+    FrameSink& sink_;
 
 private:
     void on_events(uint32_t events);
@@ -55,6 +55,7 @@ private:
     UniqueFd fd_;
     EventLoop::Watch watch_;
     StreamParser parser_;
+    ReceivedBatch frames_{sink_};
     bool write_failed_ = false;  // closing after a write error, once what is unread is read
 };
 

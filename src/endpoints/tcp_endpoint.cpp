@@ -7,7 +7,6 @@
 #include <cerrno>
 
 #include "core/log.h"
-#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {
@@ -25,10 +24,10 @@ void set_nodelay(int fd) {
 
 TcpConnection::TcpConnection(TcpServer& server, const sockaddr_in& peer)
     : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop_,
-                     server.router_, server.policy_, &server),
+                     server.sink_, server.policy_, &server),
       server_(server) {}
 
-TcpConnection::~TcpConnection() { router_.remove(*this); }
+TcpConnection::~TcpConnection() { sink_.detach(*this); }
 
 void TcpConnection::on_disconnect(const std::string& reason) {
     log_info("[tcp:%s] client %s gone: %s", server_.name().c_str(), name().c_str(), reason.c_str());
@@ -38,14 +37,14 @@ void TcpConnection::on_disconnect(const std::string& reason) {
 // --- TcpServer -----------------------------------------------------------------------------
 
 Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy) {
+                                                   FrameSink& sink, UnknownIdPolicy policy) {
     auto bound = bind_socket(SOCK_STREAM, config.host, config.port);
     if (!bound)
         return bound.error();
     if (listen(bound->fd.get(), 16) < 0)
         return make_error("cannot listen on " + to_string(bound->addr) + ": " + errno_text(errno));
     std::unique_ptr<TcpServer> server(
-        new TcpServer(config, loop, router, policy, std::move(bound->fd)));
+        new TcpServer(config, loop, sink, policy, std::move(bound->fd)));
     auto w = loop.watch(server->fd_.get(), EPOLLIN, [s = server.get()](uint32_t) { s->on_accept(); });
     if (!w)
         return w.error();
@@ -54,18 +53,18 @@ Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config,
     return server;
 }
 
-TcpServer::TcpServer(const EndpointConfig& config, EventLoop& loop, Router& router,
+TcpServer::TcpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Stream), loop_(loop), router_(router),
+    : Endpoint(config, config.name, TxQueue::Mode::Stream), loop_(loop), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
 TcpServer::~TcpServer() = default;
 
-EndpointStats TcpServer::total_stats() const {
-    EndpointStats total = stats_;
+LinkCounters TcpServer::total_counters() const {
+    LinkCounters total = stats_;
     total += retired_;
     for (const auto& c : clients_)
-        total += c->stats();
+        total += c->counters();
     return total;
 }
 
@@ -96,19 +95,19 @@ void TcpServer::on_accept() {
             log_warning("[tcp:%s] %s", name().c_str(), r.error().message.c_str());
             continue;
         }
-        router_.add(*client);
+        sink_.attach(*client);
         log_info("[tcp:%s] client %s connected", name().c_str(), to_string(peer).c_str());
         clients_.push_back(std::move(client));
     }
 }
 
 void TcpServer::drop_client(TcpConnection& client) {
-    router_.remove(client);
+    sink_.detach(client);
     defer(loop_, [this, target = &client] {
         auto it = std::find_if(clients_.begin(), clients_.end(),
                                [target](const auto& c) { return c.get() == target; });
         if (it != clients_.end()) {
-            retired_ += (*it)->stats();
+            retired_ += (*it)->counters();
             clients_.erase(it);
         }
     });
@@ -117,22 +116,22 @@ void TcpServer::drop_client(TcpConnection& client) {
 // --- TcpClient -----------------------------------------------------------------------------
 
 Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy) {
+                                                   FrameSink& sink, UnknownIdPolicy policy) {
     auto addr = resolve_ipv4(config.host, config.port);
     if (!addr)
         return addr.error();
-    std::unique_ptr<TcpClient> client(new TcpClient(config, loop, router, policy, *addr));
-    router.add(*client);
+    std::unique_ptr<TcpClient> client(new TcpClient(config, loop, sink, policy, *addr));
+    sink.attach(*client);
     client->connect_now();
     return client;
 }
 
-TcpClient::TcpClient(const EndpointConfig& config, EventLoop& loop, Router& router,
+TcpClient::TcpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, const sockaddr_in& addr)
-    : StreamEndpoint(config, config.name, loop, router, policy), addr_(addr),
+    : StreamEndpoint(config, config.name, loop, sink, policy), addr_(addr),
       backoff_(config.reconnect_min, config.reconnect_max) {}
 
-TcpClient::~TcpClient() { router_.remove(*this); }
+TcpClient::~TcpClient() { sink_.detach(*this); }
 
 void TcpClient::connect_now() {
     auto fd = make_socket(SOCK_STREAM);
@@ -168,7 +167,7 @@ void TcpClient::on_connecting(uint32_t) {
         return;
     }
     set_nodelay(fd.get());
-    if (auto r = attach(std::move(fd)); !r) {
+    if (auto r = start_stream(std::move(fd)); !r) {
         retry_later(r.error().message);
         return;
     }

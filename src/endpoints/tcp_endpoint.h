@@ -19,7 +19,7 @@ public:
     TcpConnection(TcpServer& server, const sockaddr_in& peer);
     ~TcpConnection() override;
     const char* kind() const override { return "tcp-conn"; }
-    Result<void> start(UniqueFd fd) { return attach(std::move(fd)); }
+    Result<void> start(UniqueFd fd) { return start_stream(std::move(fd)); }
 
 protected:
     void on_disconnect(const std::string& reason) override;
@@ -31,15 +31,15 @@ private:
 class TcpServer : public Endpoint {
 public:
     static Result<std::unique_ptr<TcpServer>> open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy);
+                                                   FrameSink& sink, UnknownIdPolicy policy);
     ~TcpServer() override;
     const char* kind() const override { return "tcp-server"; }
-    EndpointStats total_stats() const override;
+    LinkCounters total_counters() const override;
     void finish(TimePoint deadline) override;
 
 private:
     friend class TcpConnection;
-    TcpServer(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+    TcpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               UniqueFd fd);
     void on_accept();
     /// Forgets a client after the current dispatch round (it may be inside its own handler).
@@ -47,18 +47,18 @@ private:
 
     static constexpr size_t kMaxClients = 32;
     EventLoop& loop_;
-    Router& router_;
+    FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;
     EventLoop::Watch watch_;
     std::vector<std::unique_ptr<TcpConnection>> clients_;
-    EndpointStats retired_;
+    LinkCounters retired_;
 };
 
 class TcpClient : public StreamEndpoint {
 public:
     static Result<std::unique_ptr<TcpClient>> open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy);
+                                                   FrameSink& sink, UnknownIdPolicy policy);
     ~TcpClient() override;
     const char* kind() const override { return "tcp-client"; }
 
@@ -66,7 +66,7 @@ protected:
     void on_disconnect(const std::string& reason) override;
 
 private:
-    TcpClient(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+    TcpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               const sockaddr_in& addr);
     void connect_now();
     void on_connecting(uint32_t events);

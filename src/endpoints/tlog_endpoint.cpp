@@ -4,7 +4,6 @@
 #include <ctime>
 #include <thread>
 
-#include "routing/router.h"
 
 namespace mavbond {
 namespace {
@@ -26,18 +25,19 @@ std::array<uint8_t, TlogWriter::kTimestampBytes> wall_clock_stamp() {
 }  // namespace
 
 std::unique_ptr<TlogEndpoint> TlogEndpoint::open(const EndpointConfig& config, EventLoop& loop,
-                                                 Router& router) {
-    std::unique_ptr<TlogEndpoint> log(new TlogEndpoint(config, loop, router));
-    router.add(*log);
+                                                 FrameSink& sink) {
+    std::unique_ptr<TlogEndpoint> log(new TlogEndpoint(config, loop, sink));
+    sink.attach(*log);
     return log;
 }
 
-TlogEndpoint::TlogEndpoint(const EndpointConfig& config, EventLoop& loop, Router& router)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
+TlogEndpoint::TlogEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink)
+    : Endpoint(config, config.name, TxQueue::Mode::Datagram, nullptr, Role::Recorder),
+      loop_(loop), sink_(sink),
       writer_(config.name, config.directory, config.max_size, kRingBytes) {}
 
 TlogEndpoint::~TlogEndpoint() {
-    router_.remove(*this);
+    sink_.detach(*this);
     for (int i = 0; i < kShutdownTries && has_pending(); i++) {
         writer_.wake();
         std::this_thread::sleep_for(kBacklogRetry);
@@ -45,8 +45,8 @@ TlogEndpoint::~TlogEndpoint() {
     }
 }
 
-EndpointStats TlogEndpoint::total_stats() const {
-    EndpointStats s = stats_;
+LinkCounters TlogEndpoint::total_counters() const {
+    LinkCounters s = stats_;
     TlogWriter::Counters c = writer_.counters();
     s.tx_frames -= c.frames_lost;
     s.tx_bytes -= c.bytes_lost;

@@ -1,4 +1,4 @@
-// A flight log as an endpoint: every frame the router routes (targeted frames included,
+// A flight log as an endpoint, a recorder: every frame routed (targeted frames included,
 // wherever their target is) goes to .tlog files, each record an 8-byte big-endian timestamp
 // (microseconds since the Unix epoch) then the frame, as MAVProxy and QGroundControl write.
 //
@@ -6,7 +6,7 @@
 // clock read; TlogWriter's thread does the disk. When the ring is full, frames wait in the
 // endpoint's transmit queue (tx_queue bytes) like on any slow link, and past that the oldest
 // are dropped and counted (tx_dropped): the loop never waits for the disk. It never sends a
-// frame into the router.
+// frame into the sink.
 #pragma once
 
 #include <memory>
@@ -22,24 +22,23 @@ public:
     static constexpr size_t kRingBytes = 1 << 20;
 
     static std::unique_ptr<TlogEndpoint> open(const EndpointConfig& config, EventLoop& loop,
-                                              Router& router);
+                                              FrameSink& sink);
     /// Hands what waits to the writer (bounded), then the writer drains, fsyncs and closes.
     ~TlogEndpoint() override;
     const char* kind() const override { return "tlog"; }
-    bool receives_everything() const override { return true; }
     /// The loop's counters corrected by the writer's: frames lost to disk errors move from
     /// tx_frames to tx_dropped, failed writes count as tx_errors.
-    EndpointStats total_stats() const override;
+    LinkCounters total_counters() const override;
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
     void on_backlog(bool backlog) override;
 
 private:
-    TlogEndpoint(const EndpointConfig& config, EventLoop& loop, Router& router);
+    TlogEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink);
 
     EventLoop& loop_;
-    Router& router_;
+    FrameSink& sink_;
     TlogWriter writer_;
     EventLoop::Timer retry_timer_;  // flushes the backlog while the ring is full
 };

@@ -9,7 +9,6 @@
 #include <cerrno>
 
 #include "core/log.h"
-#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {
@@ -44,19 +43,19 @@ Result<UniqueFd> open_serial(const std::string& device, uint32_t baud, bool flow
 }
 
 std::unique_ptr<UartEndpoint> UartEndpoint::open(const EndpointConfig& config, EventLoop& loop,
-                                                 Router& router, UnknownIdPolicy policy) {
-    std::unique_ptr<UartEndpoint> uart(new UartEndpoint(config, loop, router, policy));
-    router.add(*uart);
+                                                 FrameSink& sink, UnknownIdPolicy policy) {
+    std::unique_ptr<UartEndpoint> uart(new UartEndpoint(config, loop, sink, policy));
+    sink.attach(*uart);
     uart->try_open();
     return uart;
 }
 
-UartEndpoint::UartEndpoint(const EndpointConfig& config, EventLoop& loop, Router& router,
+UartEndpoint::UartEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                            UnknownIdPolicy policy)
-    : StreamEndpoint(config, config.name, loop, router, policy),
+    : StreamEndpoint(config, config.name, loop, sink, policy),
       backoff_(config.reconnect_min, config.reconnect_max) {}
 
-UartEndpoint::~UartEndpoint() { router_.remove(*this); }
+UartEndpoint::~UartEndpoint() { sink_.detach(*this); }
 
 void UartEndpoint::try_open() {
     auto fd = open_serial(config().device, config().baud, config().flow_control);
@@ -64,7 +63,7 @@ void UartEndpoint::try_open() {
         retry_later(fd.error().message);
         return;
     }
-    if (auto r = attach(std::move(fd.value())); !r) {
+    if (auto r = start_stream(std::move(fd.value())); !r) {
         retry_later(r.error().message);
         return;
     }

@@ -10,7 +10,7 @@ namespace mavbond {
 class UartEndpoint : public StreamEndpoint {
 public:
     static std::unique_ptr<UartEndpoint> open(const EndpointConfig& config, EventLoop& loop,
-                                              Router& router, UnknownIdPolicy policy);
+                                              FrameSink& sink, UnknownIdPolicy policy);
     ~UartEndpoint() override;
     const char* kind() const override { return "uart"; }
 
@@ -18,7 +18,7 @@ protected:
     void on_disconnect(const std::string& reason) override;
 
 private:
-    UartEndpoint(const EndpointConfig& config, EventLoop& loop, Router& router,
+    UartEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                  UnknownIdPolicy policy);
     void try_open();
     void retry_later(const std::string& reason);

@@ -5,7 +5,6 @@
 #include <cstring>
 
 #include "core/log.h"
-#include "routing/router.h"
 #include "endpoints/net.h"
 
 namespace mavbond {
@@ -80,21 +79,6 @@ int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in*
     return n < 0 ? -errno : n;
 }
 
-namespace {
-
-/// Parses one datagram and routes its frames on behalf of `from`.
-void route_datagram(std::span<const uint8_t> data, Endpoint& from, EndpointStats& stats,
-                    UnknownIdPolicy policy, Router& router, TimePoint arrival) {
-    DatagramParser parser(data, policy, stats.rx);
-    Frame frame;
-    while (parser.next(frame)) {
-        router.handle_frame(from, frame, arrival);
-        stats.last_rx = arrival;
-    }
-}
-
-}  // namespace
-
 // --- UdpPeer -------------------------------------------------------------------------------
 
 UdpPeer::UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now)
@@ -111,18 +95,18 @@ void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 // --- UdpServer -----------------------------------------------------------------------------
 
 Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy) {
+                                                   FrameSink& sink, UnknownIdPolicy policy) {
     auto bound = bind_socket(SOCK_DGRAM, config.host, config.port, config.rx_buffer, config.name);
     if (!bound)
         return bound.error();
     std::unique_ptr<UdpServer> server(
-        new UdpServer(config, loop, router, policy, std::move(bound->fd)));
+        new UdpServer(config, loop, sink, policy, std::move(bound->fd)));
     auto w = loop.watch(server->fd_.get(), EPOLLIN,
                         [s = server.get()](uint32_t events) { s->on_events(events); });
     if (!w)
         return w.error();
     server->watch_ = std::move(w.value());
-    server->input_ = std::make_unique<Router::Input>(router, config.bond, server->watch_);
+    sink.attach(server->input_);
     auto period = std::clamp<Duration>(config.peer_timeout / 4, milliseconds(100), seconds(5));
     server->expiry_timer_ = loop.schedule(period, [s = server.get(), period] {
         s->forget_silent_peers();
@@ -132,22 +116,23 @@ Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config,
     return server;
 }
 
-UdpServer::UdpServer(const EndpointConfig& config, EventLoop& loop, Router& router,
+UdpServer::UdpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
+    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
 UdpServer::~UdpServer() {
     for (auto& peer : peers_)
-        router_.remove(*peer);
+        sink_.detach(*peer);
+    sink_.detach(input_);
 }
 
-EndpointStats UdpServer::total_stats() const {
-    EndpointStats total = stats_;
+LinkCounters UdpServer::total_counters() const {
+    LinkCounters total = stats_;
     total.rx_overflows = socket_drops(fd_.get());
     total += retired_;
     for (const auto& peer : peers_)
-        total += peer->stats();
+        total += peer->counters();
     return total;
 }
 
@@ -168,7 +153,7 @@ UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
         return nullptr;
     }
     peers_.push_back(std::make_unique<UdpPeer>(*this, addr, now));
-    router_.add(*peers_.back());
+    sink_.attach(*peers_.back());
     log_info("[udp:%s] new peer %s", name().c_str(), to_string(addr).c_str());
     return peers_.back().get();
 }
@@ -181,8 +166,8 @@ void UdpServer::forget_silent_peers() {
         log_info("[udp:%s] peer %s silent for %.1fs: forgotten", name().c_str(),
                  to_string(peer->address()).c_str(),
                  std::chrono::duration<double>(now - peer->last_heard()).count());
-        router_.remove(*peer);
-        retired_ += peer->stats();
+        sink_.detach(*peer);
+        retired_ += peer->counters();
         return true;
     };
     peers_.erase(std::remove_if(peers_.begin(), peers_.end(), silent), peers_.end());
@@ -202,33 +187,35 @@ void UdpServer::on_events(uint32_t events) {
     }
     if (!(events & (EPOLLIN | EPOLLERR)))
         return;
-    int n = batch_.receive(fd_.get(), loop_);
+    int n = datagrams_.receive(fd_.get(), loop_);
     if (n < 0) {
         // ICMP errors surface here for a peer that went away: nothing to do but go on.
         log_debug("[udp:%s] recvmmsg: %s", name().c_str(), errno_text(-n).c_str());
         return;
     }
     // A socket epoll reported readable held its first datagram when epoll looked.
-    input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
+    input_.read(datagrams_.read_until(), events & EPOLLIN ? datagrams_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
-        TimePoint arrival = batch_.arrival(idx);
-        UdpPeer* peer = peer_for(batch_.from(idx), arrival);
+        TimePoint arrival = datagrams_.arrival(idx);
+        UdpPeer* peer = peer_for(datagrams_.from(idx), arrival);
         if (!peer) {
-            stats_.rx.garbage_bytes += batch_.data(idx).size();
+            stats_.rx.garbage_bytes += datagrams_.data(idx).size();
             continue;
         }
         peer->heard(arrival);
-        route_datagram(batch_.data(idx), *peer, peer->mutable_stats(), policy_, router_, arrival);
+        peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_);
     }
-    // The frames lent to other endpoints point into batch_: send them before it is reused.
-    router_.end_batch();
+    if (n > 0)
+        frames_.submit();
+    // The frames lent to other links point into datagrams_: sent before it is reused.
+    sink_.end_batch();
 }
 
 // --- UdpClient -----------------------------------------------------------------------------
 
 Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy) {
+                                                   FrameSink& sink, UnknownIdPolicy policy) {
     auto addr = resolve_ipv4(config.host, config.port);
     if (!addr)
         return addr.error();
@@ -239,27 +226,30 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
     if (connect(fd->get(), reinterpret_cast<const sockaddr*>(&*addr), sizeof(sockaddr_in)) < 0)
         return make_error("cannot connect to " + to_string(*addr) + ": " + errno_text(errno));
     std::unique_ptr<UdpClient> client(
-        new UdpClient(config, loop, router, policy, std::move(fd.value())));
+        new UdpClient(config, loop, sink, policy, std::move(fd.value())));
     auto w = loop.watch(client->fd_.get(), EPOLLIN,
                         [c = client.get()](uint32_t events) { c->on_events(events); });
     if (!w)
         return w.error();
     client->watch_ = std::move(w.value());
-    client->input_ = std::make_unique<Router::Input>(router, config.bond, client->watch_);
-    router.add(*client);
+    sink.attach(client->input_);
+    sink.attach(*client);
     log_info("[udp:%s] sending to %s", config.name.c_str(), to_string(*addr).c_str());
     return client;
 }
 
-UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router,
+UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), router_(router),
+    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
-UdpClient::~UdpClient() { router_.remove(*this); }
+UdpClient::~UdpClient() {
+    sink_.detach(*this);
+    sink_.detach(input_);
+}
 
-EndpointStats UdpClient::total_stats() const {
-    EndpointStats total = stats_;
+LinkCounters UdpClient::total_counters() const {
+    LinkCounters total = stats_;
     total.rx_overflows = socket_drops(fd_.get());
     return total;
 }
@@ -275,7 +265,7 @@ void UdpClient::on_events(uint32_t events) {
         flush();
     if (!(events & (EPOLLIN | EPOLLERR)))
         return;
-    int n = batch_.receive(fd_.get(), loop_);
+    int n = datagrams_.receive(fd_.get(), loop_);
     if (n < 0) {
         // ECONNREFUSED: the peer's port is closed (ICMP port unreachable). Keep going. The
         // kernel reports the ICMP on whichever call comes first, usually this read rather than
@@ -286,12 +276,14 @@ void UdpClient::on_events(uint32_t events) {
         return;
     }
     // A socket epoll reported readable held its first datagram when epoll looked.
-    input_->read(batch_.read_until(), events & EPOLLIN ? batch_.first_arrival() : TimePoint{});
+    input_.read(datagrams_.read_until(), events & EPOLLIN ? datagrams_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
-        route_datagram(batch_.data(idx), *this, stats_, policy_, router_, batch_.arrival(idx));
+        receive_datagram(frames_, datagrams_.data(idx), datagrams_.arrival(idx), policy_);
     }
-    router_.end_batch();
+    if (n > 0)
+        frames_.submit();
+    sink_.end_batch();
 }
 
 }  // namespace mavbond

@@ -12,7 +12,6 @@
 #include <vector>
 
 #include "core/event_loop.h"
-#include "routing/router.h"
 #include "endpoints/endpoint.h"
 
 namespace mavbond {
@@ -32,7 +31,7 @@ public:
     const sockaddr_in& from(size_t i) const { return addrs_[i]; }
     /// When datagram i arrived (the kernel's receive time, on the monotonic clock).
     TimePoint arrival(size_t i) const { return arrival_[i]; }
-    /// What the last receive() tells the router: the time up to which the socket is read (the
+    /// What the last receive() tells the sink: the time up to which the socket is read (the
     /// last datagram's arrival; when it came back short of a full batch, the socket was
     /// empty then: the round's start too).
     TimePoint read_until() const {
@@ -66,7 +65,6 @@ public:
     const sockaddr_in& address() const { return addr_; }
     TimePoint last_heard() const { return last_heard_; }
     void heard(TimePoint now) { last_heard_ = now; }
-    EndpointStats& mutable_stats() { return stats_; }
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
@@ -81,17 +79,17 @@ private:
 class UdpServer : public Endpoint {
 public:
     static Result<std::unique_ptr<UdpServer>> open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy);
+                                                   FrameSink& sink, UnknownIdPolicy policy);
     ~UdpServer() override;
     const char* kind() const override { return "udp-server"; }
-    EndpointStats total_stats() const override;
+    LinkCounters total_counters() const override;
     void finish(TimePoint deadline) override;
     int fd() const { return fd_.get(); }
     /// Watches for EPOLLOUT while some peer has a backlog.
     void update_write_interest();
 
 private:
-    UdpServer(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+    UdpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               UniqueFd fd);
     void on_events(uint32_t events);
     UdpPeer* peer_for(const sockaddr_in& addr, TimePoint now);
@@ -99,42 +97,44 @@ private:
 
     static constexpr size_t kMaxPeers = 64;
     EventLoop& loop_;
-    Router& router_;
+    FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;
     EventLoop::Watch watch_;
-    std::unique_ptr<Router::Input> input_;  // for the arrival order of its bond's links
+    Input input_{config().bond, watch_};  // for the arrival order of its bond's links
     EventLoop::Timer expiry_timer_;
-    DatagramBatch batch_;
+    DatagramBatch datagrams_;
+    ReceivedBatch frames_{sink_, &input_};
     std::vector<std::unique_ptr<UdpPeer>> peers_;
-    EndpointStats retired_;     // counters of forgotten peers, so totals never go back
+    LinkCounters retired_;      // counters of forgotten peers, so totals never go back
     uint64_t refused_peers_ = 0;
 };
 
 class UdpClient : public Endpoint {
 public:
     static Result<std::unique_ptr<UdpClient>> open(const EndpointConfig& config, EventLoop& loop,
-                                                   Router& router, UnknownIdPolicy policy);
+                                                   FrameSink& sink, UnknownIdPolicy policy);
     ~UdpClient() override;
     const char* kind() const override { return "udp-client"; }
-    EndpointStats total_stats() const override;
+    LinkCounters total_counters() const override;
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
     void on_backlog(bool backlog) override;
 
 private:
-    UdpClient(const EndpointConfig& config, EventLoop& loop, Router& router, UnknownIdPolicy policy,
+    UdpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               UniqueFd fd);
     void on_events(uint32_t events);
 
     EventLoop& loop_;
-    Router& router_;
+    FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;  // connected to the peer
     EventLoop::Watch watch_;
-    std::unique_ptr<Router::Input> input_;  // for the arrival order of its bond's links
-    DatagramBatch batch_;
+    Input input_{config().bond, watch_};  // for the arrival order of its bond's links
+    DatagramBatch datagrams_;
+    ReceivedBatch frames_{sink_, &input_};
 };
 
 /// sendmmsg of one datagram per iovec (to `to`, or to the connected peer when null).

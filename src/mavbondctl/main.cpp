@@ -16,8 +16,6 @@
 #include <string>
 #include <thread>
 
-#include "mavbond_build_config.h"
-
 namespace {
 
 namespace pt = boost::property_tree;

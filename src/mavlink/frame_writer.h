@@ -26,8 +26,9 @@ size_t write_frame_v2(std::span<uint8_t> out, FrameSource source, uint32_t msgid
 /// the frame is a view over, and its CRC, updated for that change alone (CRC-16/MCRF4XX is
 /// affine, so the delta needs no CRC_EXTRA: an unknown msgid is renumbered too, and a CRC that
 /// did not check still does not). Receivers own their buffers and keep them unshared until
-/// Router::end_batch(); that is why this, and nothing else, writes into a lent frame. Call it
-/// before the frame is routed. Signed frames are refused (the signature covers seq): false.
+/// the frame sink's end_batch(); that is why this, and nothing else, writes into a lent
+/// frame. Call it before the frame is routed. Signed frames are refused (the signature
+/// covers seq): false.
 bool rewrite_seq_in_place(const Frame& frame, uint8_t seq);
 
 /// The sequence number on the wire (a renumbered frame's Frame::seq still holds the old one).

@@ -6,7 +6,6 @@
 #include <cstring>
 
 #include "core/log.h"
-#include "endpoints/endpoint.h"
 #include "mavlink/message_table.h"
 
 namespace mavbond {
@@ -41,11 +40,6 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
                                                          const std::string& plugin_dir,
                                                          EventLoop& loop, Router& router) {
     std::unique_ptr<FilterChain> chain(new FilterChain(loop, router));
-    std::map<std::string, uint32_t> members;
-    for (const auto& ep : config.endpoints) {
-        if (!ep.bond.empty())
-            chain->priority_[ep.name] = members[ep.bond]++;
-    }
     chain->entries_ = config.filters;  // never resized after this: instances point into it
     for (const auto& entry : chain->entries_) {
         if (!entry.enabled)
@@ -103,43 +97,42 @@ FilterChain::~FilterChain() {
     instances_.clear();
 }
 
-bool FilterChain::in_scope(const Instance& inst, const Endpoint& endpoint) const {
+bool FilterChain::in_scope(const Instance& inst, const Link& link) const {
     const FilterConfig& e = *inst.entry;
     if (e.bonds.empty() && e.endpoints.empty())
         return true;
-    const std::string& bond = endpoint.config().bond;
+    const std::string& bond = link.bond();
     return (!bond.empty() && std::find(e.bonds.begin(), e.bonds.end(), bond) != e.bonds.end()) ||
-           std::find(e.endpoints.begin(), e.endpoints.end(), endpoint.config().name) != e.endpoints.end();
+           std::find(e.endpoints.begin(), e.endpoints.end(), link.endpoint_name()) != e.endpoints.end();
 }
 
-void FilterChain::on_endpoint(Endpoint& endpoint, bool added) {
-    uint32_t id = endpoint.id();
+void FilterChain::on_link(const Link& link, bool added) {
+    uint32_t id = link.id();
     if (id >= links_.size())
         links_.resize(id + 1);
     LinkView& v = links_[id];
     if (added) {
-        v.endpoint = &endpoint;
-        v.name = endpoint.name();
+        v.source = &link;
+        v.name = link.name();
         v.link = mavbond_link{};
         v.link.struct_size = sizeof(mavbond_link);
         v.link.id = id;
         v.link.name = v.name.c_str();
-        uint32_t bond = router_.bond_of(endpoint);
+        uint32_t bond = router_.bond_of(link);
         v.link.bond_id = bond == Router::kNoBond ? MAVBOND_NO_BOND : bond;
-        v.link.bond_name = bond == Router::kNoBond ? nullptr : router_.bonds()[bond].name.c_str();
+        v.link.bond_name = bond == Router::kNoBond ? nullptr : router_.bonds()[bond].name().c_str();
         // Priority: the place among the bond's members in the config (peers share theirs).
-        auto p = priority_.find(endpoint.config().name);
-        v.link.priority = p == priority_.end() ? 0 : p->second;
+        v.link.priority = bond == Router::kNoBond ? 0 : router_.member_of(link);
         v.positions.clear();
         v.scope_mask = 0;
         for (size_t i = 0; i < instances_.size(); i++) {
-            if (in_scope(*instances_[i], endpoint))
+            if (in_scope(*instances_[i], link))
                 v.scope_mask |= uint64_t{1} << i;
         }
     }
     link_list_.clear();
     for (const auto& l : links_) {
-        if (l.endpoint && (added || &l != &v))
+        if (l.source && (added || &l != &v))
             link_list_.push_back(&l.link);
     }
     for (size_t i = 0; i < instances_.size(); i++) {
@@ -148,7 +141,7 @@ void FilterChain::on_endpoint(Endpoint& endpoint, bool added) {
             d.on_link(instances_[i]->self, &v.link, added ? MAVBOND_LINK_ADDED : MAVBOND_LINK_REMOVED);
     }
     if (!added)
-        v.endpoint = nullptr;
+        v.source = nullptr;
 }
 
 mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
@@ -174,38 +167,42 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
     return f;
 }
 
-FrameFilter::Verdict FilterChain::on_ingress(const Frame& frame, Endpoint& from, TimePoint now) {
-    LinkView& v = links_[from.id()];
-    notes_ = mavbond_frame_notes{};
-    notes_.struct_size = sizeof notes_;
-    if (v.scope_mask == 0)
-        return Verdict::Pass;
-    mavbond_frame f = to_c_frame(frame, now);
-    StreamStep step = v.positions.track(frame.sysid, frame.compid, frame.seq);
-    f.stream_pos = step.pos;
-    f.stream_lost = step.lost;
-    f.stream_flags = step.flags;
-    mavbond_frame_notes& notes = notes_;
-    for (size_t i = 0; i < instances_.size(); i++) {
-        if (!(v.scope_mask >> i & 1))
+void FilterChain::on_ingress(ReceivedFrame* const* frames, size_t count, Ingress* out) {
+    for (size_t k = 0; k < count; k++) {
+        const ReceivedFrame& r = *frames[k];
+        LinkView& v = links_[r.from->id()];
+        if (v.scope_mask == 0 || !r.routed)
             continue;
-        Instance& inst = *instances_[i];
-        auto hook = inst.plugin->descriptor().on_ingress;
-        if (!hook)
-            continue;
-        bool already_dropped = notes.flags & MAVBOND_NOTE_DROPPED;
-        if (hook(inst.self, &f, &notes, &v.link) == MAVBOND_DROP && !already_dropped) {
-            inst.dropped++;
-            notes.flags |= MAVBOND_NOTE_DROPPED;
+        mavbond_frame f = to_c_frame(r.frame, r.arrival);
+        StreamStep step = v.positions.track(r.frame.sysid, r.frame.compid, r.frame.seq);
+        f.stream_pos = step.pos;
+        f.stream_lost = step.lost;
+        f.stream_flags = step.flags;
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        for (size_t i = 0; i < instances_.size(); i++) {
+            if (!(v.scope_mask >> i & 1))
+                continue;
+            Instance& inst = *instances_[i];
+            auto hook = inst.plugin->descriptor().on_ingress;
+            if (!hook)
+                continue;
+            bool already_dropped = notes.flags & MAVBOND_NOTE_DROPPED;
+            if (hook(inst.self, &f, &notes, &v.link) == MAVBOND_DROP && !already_dropped) {
+                inst.dropped++;
+                notes.flags |= MAVBOND_NOTE_DROPPED;
+            }
         }
+        out[k].pass = !(notes.flags & MAVBOND_NOTE_DROPPED);
+        if (notes.flags & MAVBOND_NOTE_POSITION)
+            out[k].bond_pos = notes.bond_pos;
     }
-    return notes.flags & MAVBOND_NOTE_DROPPED ? Verdict::Drop : Verdict::Pass;
 }
 
-FrameFilter::Verdict FilterChain::on_egress(const Frame& frame, Endpoint& to, TimePoint now) {
+bool FilterChain::on_egress(const Frame& frame, const Link& to) {
     const LinkView& v = links_[to.id()];
     if (v.scope_mask == 0)
-        return Verdict::Pass;
+        return true;
     mavbond_frame f{};
     bool built = false;
     for (size_t i = 0; i < instances_.size(); i++) {
@@ -214,15 +211,15 @@ FrameFilter::Verdict FilterChain::on_egress(const Frame& frame, Endpoint& to, Ti
         if (!hook || !(v.scope_mask >> i & 1))
             continue;
         if (!built) {
-            f = to_c_frame(frame, now);
+            f = to_c_frame(frame, loop_.now());
             built = true;
         }
         if (hook(inst.self, &f, &v.link) == MAVBOND_DROP) {
             inst.dropped++;
-            return Verdict::Drop;
+            return false;
         }
     }
-    return Verdict::Pass;
+    return true;
 }
 
 std::string FilterChain::status_json() const {
@@ -366,9 +363,9 @@ int FilterChain::set_active_link(uint32_t bond_id, uint32_t link_id) {
 }
 
 int FilterChain::link_counters(uint32_t link_id, mavbond_link_counters* out) {
-    if (link_id >= links_.size() || !links_[link_id].endpoint)
+    if (link_id >= links_.size() || !links_[link_id].source)
         return -ENOENT;
-    const EndpointStats& s = links_[link_id].endpoint->stats();
+    const LinkCounters& s = links_[link_id].source->counters();
     *out = mavbond_link_counters{sizeof(mavbond_link_counters), s.rx.frames, s.rx.bytes,
                                  s.rx.crc_errors, s.rx.garbage_bytes, s.rx.unknown_ids,
                                  s.tx_frames, s.tx_bytes, s.tx_dropped};
@@ -378,9 +375,9 @@ int FilterChain::link_counters(uint32_t link_id, mavbond_link_counters* out) {
 int FilterChain::bond_state(uint32_t bond_id, mavbond_bond_state* out) {
     if (bond_id >= router_.bonds().size())
         return -ENOENT;
-    const Router::Bond& b = router_.bonds()[bond_id];
-    *out = mavbond_bond_state{sizeof(mavbond_bond_state), b.active_link, b.switches,
-                              static_cast<uint8_t>(b.tx_active)};
+    const Bond& b = router_.bonds()[bond_id];
+    *out = mavbond_bond_state{sizeof(mavbond_bond_state), b.active_link(), b.switches(),
+                              static_cast<uint8_t>(b.tx_active())};
     return 0;
 }
 

@@ -12,7 +12,7 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
-#include "daemon/prometheus.h"
+#include "core/metric_set.h"
 #include "routing/router.h"
 #include "routing/plugin_host.h"
 #include "routing/plugin_loader.h"
@@ -29,14 +29,11 @@ public:
                                                        EventLoop& loop, Router& router);
     ~FilterChain() override;
 
-    Verdict on_ingress(const Frame& frame, Endpoint& from, TimePoint now) override;
-    Verdict on_egress(const Frame& frame, Endpoint& to, TimePoint now) override;
-    void on_endpoint(Endpoint& endpoint, bool added) override;
+    void on_ingress(ReceivedFrame* const* frames, size_t count, Ingress* out) override;
+    bool on_egress(const Frame& frame, const Link& to) override;
+    void on_link(const Link& link, bool added) override;
 
     size_t size() const { return instances_.size(); }
-    /// What the filters noted on the frame the last on_ingress() saw (zero when none was in
-    /// scope): the renumbering stage reads dedup's hash and duplicate notes here.
-    const mavbond_frame_notes& ingress_notes() const { return notes_; }
     /// {"filters":[{"plugin":..,"dropped":..,"status":{...}}]} for the status socket.
     std::string status_json() const;
     /// Each filter's drop count and what its plugin's metrics hook gives: samples named
@@ -49,12 +46,12 @@ private:
     struct LinkView {
         mavbond_link link{};
         std::string name;
-        Endpoint* endpoint = nullptr;
+        const Link* source = nullptr;  // nullptr: no link has this id now
         uint64_t scope_mask = 0;  // bit i: instance i applies to this link
         StreamPositions positions;  // of the sources heard on this link
     };
     FilterChain(EventLoop& loop, Router& router);
-    bool in_scope(const Instance& inst, const Endpoint& endpoint) const;
+    bool in_scope(const Instance& inst, const Link& link) const;
     static mavbond_frame to_c_frame(const Frame& frame, TimePoint rx_time);
 
     // HostServices (what the plugins' host API calls land on)
@@ -73,13 +70,11 @@ private:
     std::vector<std::unique_ptr<LoadedPlugin>> plugins_;  // destroyed after the instances
     std::vector<std::unique_ptr<Instance>> instances_;
     std::deque<LinkView> links_;  // index = endpoint id; a deque keeps the views where they are
-    std::map<std::string, uint32_t> priority_;           // endpoint name -> place in its bond
     std::vector<const mavbond_link*> link_list_;         // registered links, id order
     std::map<uint64_t, EventLoop::Timer> timers_;
     uint64_t next_timer_ = 1;
     std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the chain
     void defer_erase(uint64_t timer_id);
-    mavbond_frame_notes notes_{};
 };
 
 }  // namespace mavbond

@@ -6,7 +6,6 @@
 
 #include "core/log.h"
 #include "routing/router.h"
-#include "endpoints/endpoint.h"
 
 namespace mavbond {
 
@@ -179,18 +178,15 @@ LinkEvents::Output LinkEvents::poll(TimePoint now) {
 
 // --- LinkEventMonitor ------------------------------------------------------------------------
 
-LinkEventMonitor::LinkEventMonitor(const LinkEventsConfig& config,
-                                   const std::vector<std::unique_ptr<Endpoint>>& endpoints,
-                                   const Router& router, EventLoop& loop, LocalSource& source)
+LinkEventMonitor::LinkEventMonitor(const LinkEventsConfig& config, const Router& router,
+                                   EventLoop& loop, LocalSource& source)
     : config_(config), router_(router), source_(source),
       events_(config.silent_after, config.min_interval) {
-    for (const auto& b : router.bonds())
-        events_.add_bond(b.name);
-    for (const auto& e : endpoints) {
-        uint32_t bond = e->config().bond.empty() ? Router::kNoBond
-                                                 : router.bond_index(e->config().bond);
-        if (bond != Router::kNoBond)
-            links_.emplace_back(e.get(), events_.add_link(bond, e->name()));
+    for (const Bond& b : router.bonds()) {
+        uint32_t bond = events_.add_bond(b.name());
+        auto& ids = links_.emplace_back();
+        for (const std::string& member : b.members())
+            ids.push_back(events_.add_link(bond, member));
     }
     timer_ = loop.schedule(kTick, [this, &loop] {
         tick(router_.arrival_clock(loop.now()));
@@ -199,13 +195,12 @@ LinkEventMonitor::LinkEventMonitor(const LinkEventsConfig& config,
 }
 
 void LinkEventMonitor::tick(TimePoint now) {
-    for (const auto& [endpoint, id] : links_)
-        events_.observe_link(id, endpoint->total_stats().last_rx, now);
     const auto& bonds = router_.bonds();
     for (uint32_t i = 0; i < bonds.size(); i++) {
-        const Endpoint* active = bonds[i].active_link < router_.endpoints().size()
-                                     ? router_.endpoints()[bonds[i].active_link] : nullptr;
-        events_.observe_bond(i, active ? active->config().name : "", bonds[i].switches, now);
+        for (uint32_t m = 0; m < links_[i].size(); m++)
+            events_.observe_link(links_[i][m], bonds[i].last_heard(m), now);
+        const Link* active = router_.link(bonds[i].active_link());
+        events_.observe_bond(i, active ? active->endpoint_name() : "", bonds[i].switches(), now);
     }
     LinkEvents::Output out = events_.poll(now);
     for (const auto& e : out.events)

@@ -33,7 +33,6 @@
 
 namespace mavbond {
 
-class Endpoint;
 class Router;
 
 /// The rules above, without a loop, a router or sockets (unit-tested on their own).
@@ -101,15 +100,15 @@ private:
     std::vector<std::string> events_;
 };
 
-/// Feeds LinkEvents from the endpoints' counters and the router's bonds on a timer; logs the
-/// events and sends the notices through `source` (when link_events.statustext is on).
+/// Feeds LinkEvents from the router's bonds on a timer: when each member was last heard and
+/// which link is active; logs the events and sends the notices through `source` (when
+/// link_events.statustext is on).
 class LinkEventMonitor {
 public:
     static constexpr Duration kTick = milliseconds(100);
 
-    /// `endpoints` (the configured ones) must outlive the monitor.
-    LinkEventMonitor(const LinkEventsConfig& config, const std::vector<std::unique_ptr<Endpoint>>& endpoints,
-                     const Router& router, EventLoop& loop, LocalSource& source);
+    LinkEventMonitor(const LinkEventsConfig& config, const Router& router, EventLoop& loop,
+                     LocalSource& source);
 
 private:
     void tick(TimePoint now);
@@ -118,7 +117,7 @@ private:
     const Router& router_;
     LocalSource& source_;
     LinkEvents events_;
-    std::vector<std::pair<const Endpoint*, uint32_t>> links_;  // configured member, its id
+    std::vector<std::vector<uint32_t>> links_;  // per bond, per member: its id in events_
     EventLoop::Timer timer_;
 };
 

@@ -59,7 +59,7 @@ void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len) {
     }
     seq_++;
     frames_sent_++;
-    router_.inject(frame, loop_.now());
+    router_.inject(frame);
 }
 
 }  // namespace mavbond

@@ -119,7 +119,8 @@ protected:
                                 "filters:\n" + filters, "t.yaml");
         EXPECT_TRUE(cfg.has_value()) << cfg.error().message;
         config_ = std::make_unique<Config>(std::move(cfg.value()));
-        router_ = std::make_unique<Router>(*loop_, seconds(10), config_->bonds);
+        router_ = std::make_unique<Router>(*loop_, seconds(10));
+        router_->replace_bonds(*config_);
         return FilterChain::create(*config_, kDir, *loop_, *router_);
     }
     std::unique_ptr<EventLoop> loop_ = std::move(EventLoop::create().value());

@@ -38,10 +38,12 @@ double route_ns(Router& router, Endpoint& from, const std::vector<Frame>& frames
     using Steady = std::chrono::steady_clock;
     Steady::duration timed{};
     TimePoint now = Clock::now();
+    ReceivedBatch batch(router);
     for (size_t done = 0; done < total; done += kBatch) {
         auto t0 = Steady::now();
         for (size_t i = 0; i < kBatch; i++)
-            router.handle_frame(from, frames[(done + i) % frames.size()], now);
+            batch.add(frames[(done + i) % frames.size()], from, now, true);
+        batch.submit();
         router.end_batch();
         timed += Steady::now() - t0;
         if (done % (kBatch * 64) == 0)
@@ -81,17 +83,17 @@ int run(size_t total, const std::string& dir) {
     log_cfg.directory = dir;
     Router router(*loop.value(), seconds(30));
     NullEndpoint source(src_cfg), sink(sink_cfg);
-    router.add(source);
-    router.add(sink);
+    router.attach(source);
+    router.attach(sink);
     route_ns(router, source, frames, total / 4);  // warm up
     double base = route_ns(router, source, frames, total);
     double with_log;
-    EndpointStats st;
+    LinkCounters st;
     {
         auto log = TlogEndpoint::open(log_cfg, *loop.value(), router);
         route_ns(router, source, frames, total / 4);
         with_log = route_ns(router, source, frames, total);
-        st = log->total_stats();
+        st = log->total_counters();
     }
     std::printf("frames %zu x 40 B, batches of %zu\n", total, kBatch);
     std::printf("router to one sink:            %6.1f ns/frame\n", base);
@@ -101,8 +103,8 @@ int run(size_t total, const std::string& dir) {
                 static_cast<unsigned long long>(st.tx_frames),
                 static_cast<unsigned long long>(st.tx_dropped),
                 static_cast<unsigned long long>(st.tx_errors));
-    router.remove(sink);
-    router.remove(source);
+    router.detach(sink);
+    router.detach(source);
     return 0;
 }
 

@@ -1,4 +1,4 @@
-#include "daemon/prometheus.h"
+#include "core/metric_set.h"
 
 #include <charconv>
 #include <cmath>

@@ -1,0 +1,121 @@
+#include "routing/bond.h"
+
+#include <algorithm>
+
+#include "mavlink/frame_writer.h"
+
+namespace mavbond {
+
+Bond::Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints)
+    : name_(config.name), tx_active_(config.tx == BondConfig::Tx::Active) {
+    for (const auto& ep : endpoints) {
+        if (ep.bond == name_)
+            members_.push_back(ep.name);
+    }
+    last_heard_.assign(members_.size(), TimePoint{});
+    if (config.renumber)
+        renumberer_ = std::make_unique<SeqRenumberer>();
+}
+
+uint32_t Bond::member_index(const std::string& endpoint) const {
+    auto it = std::find(members_.begin(), members_.end(), endpoint);
+    return it == members_.end() ? kNoMember : static_cast<uint32_t>(it - members_.begin());
+}
+
+void Bond::set_active_link(LinkId link) {
+    if (active_link_ != link) {
+        active_link_ = link;
+        switches_++;
+    }
+}
+
+void Bond::forget_link(LinkId link) {
+    if (active_link_ == link)
+        active_link_ = kNoLink;
+}
+
+void Bond::renumber(Frame& frame, bool delivered, std::optional<int64_t> bond_pos,
+                    TimePoint arrival) {
+    if (frame.is_signed()) {
+        signed_left_alone_++;
+        return;
+    }
+    if (!delivered)
+        return;
+    const int64_t t_ns = std::chrono::duration_cast<Duration>(arrival.time_since_epoch()).count();
+    uint8_t out = bond_pos ? renumberer_->deliver(frame.sysid, frame.compid, frame.seq, *bond_pos, t_ns)
+                           : renumberer_->deliver_unplaced(frame.sysid, frame.compid, frame.seq);
+    rewrite_seq_in_place(frame, out);
+    frame.seq = out;
+}
+
+std::vector<std::pair<const char*, uint64_t>> Bond::renumber_counters() const {
+    if (!renumberer_)
+        return {};
+    const SeqRenumberer::Counters& c = renumberer_->counters();
+    return {{"renumbered", c.renumbered},   {"gaps", c.gaps},
+            {"late_filled", c.late_filled}, {"unplaced", c.unplaced},
+            {"untracked", c.untracked},     {"signed_left_alone", signed_left_alone_}};
+}
+
+// --- arrival order -------------------------------------------------------------------------
+
+bool Bond::must_wait(TimePoint t, TimePoint polled, bool all_reported) const {
+    if (!waiting.empty())
+        return true;  // after the ones already waiting
+    for (const Input* in : inputs) {
+        if (in->read_to(polled, all_reported) < t)
+            return true;
+    }
+    return false;
+}
+
+void Bond::wait_aside(const ReceivedFrame& frame, uint64_t order) {
+    auto offset = static_cast<uint32_t>(arena.size());
+    arena.insert(arena.end(), frame.frame.bytes.begin(), frame.frame.bytes.end());
+    waiting.push_back(WaitingFrame{frame, order, offset});
+}
+
+size_t Bond::release(TimePoint polled, bool all_reported, bool all) {
+    // Every frame up to the time each input is known to be read to.
+    held_until = TimePoint::max();
+    for (const Input* in : inputs) {
+        if (!all)
+            held_until = std::min(held_until, in->read_to(polled, all_reported));
+    }
+    std::sort(waiting.begin(), waiting.end(), [](const WaitingFrame& a, const WaitingFrame& b) {
+        return a.received.arrival != b.received.arrival ? a.received.arrival < b.received.arrival
+                                                        : a.order < b.order;
+    });
+    size_t n = 0;
+    while (n < waiting.size() && waiting[n].received.arrival <= held_until)
+        n++;
+    return n;
+}
+
+ReceivedFrame& Bond::released(size_t i) {
+    WaitingFrame& w = waiting[i];
+    Frame& f = w.received.frame;
+    const uint8_t* base = arena.data() + w.offset;
+    auto payload_at = f.payload.data() - f.bytes.data();
+    f.payload = {base + payload_at, f.payload.size()};
+    f.bytes = {base, f.bytes.size()};
+    return w.received;
+}
+
+void Bond::drop_released(size_t count) {
+    waiting.erase(waiting.begin(), waiting.begin() + static_cast<ptrdiff_t>(count));
+    if (waiting.empty()) {
+        arena.clear();
+        return;
+    }
+    // The rest waits for the next round; its bytes move to the front of the arena.
+    size_t keep_from = waiting.front().offset;  // not sorted by offset: find the lowest
+    for (const WaitingFrame& w : waiting)
+        keep_from = std::min<size_t>(keep_from, w.offset);
+    arena.erase(arena.begin(), arena.begin() + static_cast<ptrdiff_t>(keep_from));
+    for (WaitingFrame& w : waiting)
+        w.offset -= static_cast<uint32_t>(keep_from);
+}
+
+}  // namespace mavbond

@@ -1,0 +1,105 @@
+// A bond: links to one peer that act as one route target (two radios, radio + LTE). Everything
+// routing keeps of a bond lives here: its members in config order (a link's place among them
+// is its priority for the filters; a UDP peer or TCP connection takes its server's place),
+// when each member was last heard, the tx policy and the active link, the frames held back
+// for arrival order and the sockets that feed them, and the renumbering of what it delivers.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "config/config.h"
+#include "core/clock.h"
+#include "routing/frame_sink.h"
+#include "routing/link.h"
+#include "routing/renumber.h"
+
+namespace mavbond {
+
+class Bond {
+public:
+    static constexpr uint32_t kNoMember = UINT32_MAX;
+
+    /// The bond `config` declares, with the endpoints of `endpoints` that name it as members.
+    Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints);
+
+    const std::string& name() const { return name_; }
+    bool tx_active() const { return tx_active_; }
+
+    /// The members' endpoint names, in config order.
+    const std::vector<std::string>& members() const { return members_; }
+    /// The place of configured endpoint `endpoint` among the members, or kNoMember.
+    uint32_t member_index(const std::string& endpoint) const;
+    /// When a frame last came in on member `member` (epoch: never).
+    TimePoint last_heard(uint32_t member) const { return last_heard_[member]; }
+    void heard(uint32_t member, TimePoint arrival) {
+        last_heard_[member] = std::max(last_heard_[member], arrival);
+    }
+
+    /// The link `tx: active` sends on (kNoLink: none chosen yet, every member sends).
+    LinkId active_link() const { return active_link_; }
+    uint64_t switches() const { return switches_; }
+    /// Makes `link` (a member's) the active one; counts a switch when it changes.
+    void set_active_link(LinkId link);
+    /// A member's link went away: if it was the active one, none is.
+    void forget_link(LinkId link);
+    /// Whether member link `to` may send under the tx policy.
+    bool lets_send(LinkId to) const {
+        // Until the link-switch filter has chosen, an active-only bond sends on every member
+        // rather than on none.
+        return !tx_active_ || active_link_ == kNoLink || active_link_ == to;
+    }
+
+    /// Whether the bond renumbers what it delivers (`renumber: true`).
+    bool renumbers() const { return renumberer_ != nullptr; }
+    /// Gives a frame of a member that the filters let through (`delivered`) its output
+    /// sequence number, in its bytes and in `frame.seq`. `bond_pos`: its place in its source's
+    /// stream as dedup numbers it (the same for every link's copy), when dedup placed it.
+    /// Signed frames are left alone, and counted whether delivered or not: the signature
+    /// covers the sequence number.
+    void renumber(Frame& frame, bool delivered, std::optional<int64_t> bond_pos, TimePoint arrival);
+    /// What renumbering did, as (name, count) pairs in a fixed order; empty when the bond
+    /// does not renumber.
+    std::vector<std::pair<const char*, uint64_t>> renumber_counters() const;
+
+    // --- arrival order (the router's merge, see router.h) -----------------------------------
+
+    /// A frame of a member link copied aside: its bytes at `offset` in the arena.
+    struct WaitingFrame {
+        ReceivedFrame received;  // spans rebuilt from the arena when it is released
+        uint64_t order;          // ties (the frames of one datagram) keep the order they came in
+        uint32_t offset;
+    };
+    /// The sockets that feed the members.
+    std::vector<Input*> inputs;
+    std::vector<WaitingFrame> waiting;
+    std::vector<uint8_t> arena;
+    TimePoint held_until = TimePoint::max();  // frames after it wait for the next round
+    /// Whether a frame that arrived at `t` must wait for others that may have come before it.
+    bool must_wait(TimePoint t, TimePoint polled, bool all_reported) const;
+    /// Copies a frame aside (its bytes into the arena).
+    void wait_aside(const ReceivedFrame& frame, uint64_t order);
+    /// Sorts what waits in arrival order and says how many may go: those that arrived no
+    /// later than every input is read to (`all`: every one).
+    size_t release(TimePoint polled, bool all_reported, bool all);
+    /// The frame at `i` of the released ones, its spans pointing into the arena.
+    ReceivedFrame& released(size_t i);
+    /// Forgets the first `count` frames (routed) and moves the rest to the arena's front.
+    void drop_released(size_t count);
+
+private:
+    std::string name_;
+    bool tx_active_;
+    std::vector<std::string> members_;
+    std::vector<TimePoint> last_heard_;
+    LinkId active_link_ = kNoLink;
+    uint64_t switches_ = 0;
+    std::unique_ptr<SeqRenumberer> renumberer_;  // nullptr: the bond does not renumber
+    uint64_t signed_left_alone_ = 0;
+};
+
+}  // namespace mavbond

@@ -1,0 +1,97 @@
+// A link is a route target: a place frames come from and go to (a UDP peer or client, a TCP
+// connection, a UART, a flight log). Endpoints (src/endpoints) are links; routing knows them
+// only through this class and never includes an endpoint's header.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "core/clock.h"
+#include "mavlink/frame.h"
+#include "mavlink/frame_parser.h"
+
+namespace mavbond {
+
+/// A link's counters (and an endpoint's, summed over its links): what the status socket,
+/// /metrics, the log lines and the plugins' link_counters show.
+struct LinkCounters {
+    ParserCounters rx;          // frames, bytes, crc_errors, garbage_bytes, unknown_ids, bad_flags
+    uint64_t rx_filtered = 0;   // dropped by allow_in/block_in
+    uint64_t rx_overflows = 0;  // datagrams the kernel dropped: the receive buffer was full
+    uint64_t tx_frames = 0;
+    uint64_t tx_bytes = 0;
+    uint64_t tx_filtered = 0;   // dropped by allow_out/block_out
+    uint64_t tx_dropped = 0;    // transmit queue full, link down, or a write error
+    uint64_t tx_errors = 0;     // hard write errors (ICMP unreachable, EIO, ...)
+    uint64_t sig_unsigned = 0;  // signing endpoints: unsigned frames (dropped when required)
+    uint64_t sig_bad = 0;       // signing endpoints: dropped, signature does not verify
+    uint64_t sig_replay = 0;    // signing endpoints: dropped, timestamp replayed or too old
+    TimePoint last_rx{};        // when a frame last came in (epoch: never); not a counter
+
+    LinkCounters& operator+=(const LinkCounters& o);
+};
+
+/// Calls f(name, value) for every counter, in one order: the log lines, the status socket,
+/// /metrics and the tests all name them this way.
+template <typename F>
+void for_each_counter(const LinkCounters& s, F&& f) {
+    f("rx_frames", s.rx.frames);
+    f("rx_bytes", s.rx.bytes);
+    f("crc_errors", s.rx.crc_errors);
+    f("garbage_bytes", s.rx.garbage_bytes);
+    f("unknown_ids", s.rx.unknown_ids);
+    f("bad_flags", s.rx.bad_flags);
+    f("rx_filtered", s.rx_filtered);
+    f("rx_overflows", s.rx_overflows);
+    f("tx_frames", s.tx_frames);
+    f("tx_bytes", s.tx_bytes);
+    f("tx_filtered", s.tx_filtered);
+    f("tx_dropped", s.tx_dropped);
+    f("tx_errors", s.tx_errors);
+    f("sig_unsigned", s.sig_unsigned);
+    f("sig_bad", s.sig_bad);
+    f("sig_replay", s.sig_replay);
+}
+
+/// Dense id of an attached link (reused after it detaches).
+using LinkId = uint32_t;
+constexpr LinkId kNoLink = UINT32_MAX;
+
+class Link {
+public:
+    /// `endpoint`: the configured endpoint it belongs to (a UDP peer's or TCP connection's
+    /// server): its place in a bond and in a filter's scope. `bond`: "" when not in one.
+    Link(std::string name, std::string endpoint, std::string bond, bool records_everything)
+        : name_(std::move(name)), endpoint_(std::move(endpoint)), bond_(std::move(bond)),
+          records_everything_(records_everything) {}
+    virtual ~Link() = default;
+    Link(const Link&) = delete;
+    Link& operator=(const Link&) = delete;
+
+    /// "radio", or "gcs@127.0.0.1:5555" for a learned UDP peer.
+    const std::string& name() const { return name_; }
+    const std::string& endpoint_name() const { return endpoint_; }
+    const std::string& bond() const { return bond_; }
+    /// A recorder (a flight log) gets every frame routed, targeted ones too, and sends none.
+    bool records_everything() const { return records_everything_; }
+    /// Its id while attached to a sink, kNoLink otherwise.
+    LinkId id() const { return id_; }
+
+    /// Takes a frame to send; its bytes are lent until flush(). Returns true when the link
+    /// has something to flush that it had not before (the sink flushes it at the batch's end).
+    virtual bool send(const Frame& frame) = 0;
+    /// Writes what send() lent and whatever waited.
+    virtual void flush() = 0;
+    /// This link's own counters.
+    virtual const LinkCounters& counters() const = 0;
+
+private:
+    friend class Router;  // assigns the id at attach
+    std::string name_;
+    std::string endpoint_;
+    std::string bond_;
+    bool records_everything_;
+    LinkId id_ = kNoLink;
+};
+
+}  // namespace mavbond

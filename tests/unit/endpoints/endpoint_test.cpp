@@ -1,0 +1,141 @@
+// What an endpoint decides before routing sees a frame (its signature, allow_in/block_in) and
+// on the way out (allow_out/block_out), against a sink that only records what it is handed.
+#include "endpoints/endpoint.h"
+
+#include <gtest/gtest.h>
+
+#include <array>
+#include <vector>
+
+#include "mavlink/frame_writer.h"
+
+namespace mavbond {
+namespace {
+
+/// A frame sink that keeps what it is handed: each frame's msgid and whether it is routed.
+class RecordingSink : public FrameSink {
+public:
+    struct Handed {
+        uint32_t msgid;
+        bool routed;
+        const Link* from;
+    };
+    void attach(Link&) override { attached++; }
+    void detach(Link&) override { attached--; }
+    void attach(Input&) override {}
+    void detach(Input&) override {}
+    void ingress(ReceivedBatch& batch) override {
+        for (size_t i = 0; i < batch.size(); i++)
+            handed.push_back({batch[i].frame.msgid, batch[i].routed, batch[i].from});
+    }
+    void end_batch() override { batches++; }
+    int attached = 0;
+    int batches = 0;
+    std::vector<Handed> handed;
+};
+
+/// An endpoint whose "socket" records the datagrams it was asked to send.
+class RecordingEndpoint : public Endpoint {
+public:
+    explicit RecordingEndpoint(const EndpointConfig& config)
+        : Endpoint(config, config.name, TxQueue::Mode::Datagram) {}
+    const char* kind() const override { return "test"; }
+    std::vector<std::vector<uint8_t>> written;
+
+protected:
+    int write_datagrams(const iovec* frames, size_t count) override {
+        for (size_t i = 0; i < count; i++) {
+            auto* p = static_cast<const uint8_t*>(frames[i].iov_base);
+            written.emplace_back(p, p + frames[i].iov_len);
+        }
+        return static_cast<int>(count);
+    }
+};
+
+constexpr uint32_t kHeartbeat = 0;
+constexpr uint32_t kAttitude = 30;
+
+/// A valid MAVLink 2 frame of `msgid` (HEARTBEAT or ATTITUDE) from (1, 1), its payload
+/// all ones.
+std::vector<uint8_t> datagram(uint32_t msgid, uint8_t seq = 0) {
+    std::array<uint8_t, kMaxFrameLen> buf{};
+    std::vector<uint8_t> payload(msgid == kHeartbeat ? 9 : 28, 1);
+    size_t n = write_frame_v2(buf, FrameSource{1, 1, seq}, msgid, payload);
+    return {buf.begin(), buf.begin() + static_cast<ptrdiff_t>(n)};
+}
+
+class EndpointTest : public ::testing::Test {
+protected:
+    /// Hands the datagrams to `e` as one read.
+    void receive(RecordingEndpoint& e, const std::vector<std::vector<uint8_t>>& datagrams) {
+        ReceivedBatch batch(sink_);
+        for (const auto& d : datagrams)
+            e.receive_datagram(batch, d, Clock::now(), UnknownIdPolicy::Forward);
+        batch.submit();
+        sink_.end_batch();
+    }
+    EndpointConfig config(const char* name) {
+        EndpointConfig c;
+        c.name = name;
+        return c;
+    }
+    RecordingSink sink_;
+};
+
+TEST_F(EndpointTest, AllowInRefusalsReachRoutingToTeachTheirSourceOnly) {
+    EndpointConfig c = config("autopilot");
+    c.filter_in.allow = {kHeartbeat};
+    RecordingEndpoint e(c);
+    receive(e, {datagram(kHeartbeat), datagram(kAttitude, 1)});
+    ASSERT_EQ(2u, sink_.handed.size());
+    EXPECT_EQ(kHeartbeat, sink_.handed[0].msgid);
+    EXPECT_TRUE(sink_.handed[0].routed);
+    EXPECT_EQ(kAttitude, sink_.handed[1].msgid);
+    EXPECT_FALSE(sink_.handed[1].routed);
+    EXPECT_EQ(&e, sink_.handed[1].from);
+    EXPECT_EQ(1u, e.counters().rx_filtered);
+    EXPECT_EQ(2u, e.counters().rx.frames);
+}
+
+TEST_F(EndpointTest, BlockOutDropsAndCounts) {
+    EndpointConfig c = config("gcs");
+    c.filter_out.block = {kAttitude};
+    RecordingEndpoint e(c);
+    auto att = datagram(kAttitude);
+    auto hb = datagram(kHeartbeat);
+    Frame f;
+    ParserCounters counters;
+    ASSERT_TRUE(DatagramParser(att, UnknownIdPolicy::Forward, counters).next(f));
+    EXPECT_FALSE(e.send(f));
+    ASSERT_TRUE(DatagramParser(hb, UnknownIdPolicy::Forward, counters).next(f));
+    EXPECT_TRUE(e.send(f)) << "the first frame lent makes the endpoint need a flush";
+    e.flush();
+    ASSERT_EQ(1u, e.written.size());
+    EXPECT_EQ(hb, e.written[0]);
+    EXPECT_EQ(1u, e.counters().tx_filtered);
+    EXPECT_EQ(1u, e.counters().tx_frames);
+}
+
+TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
+    EndpointConfig c = config("radio");
+    c.signing.enabled = true;
+    c.signing.key.fill(7);
+    RecordingEndpoint e(c);
+    receive(e, {datagram(kHeartbeat)});
+    EXPECT_TRUE(sink_.handed.empty());
+    EXPECT_EQ(1u, e.counters().sig_unsigned);
+    EXPECT_NE(TimePoint{}, e.counters().last_rx) << "the link was heard all the same";
+}
+
+TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
+    RecordingEndpoint e(config("radio"));
+    std::vector<std::vector<uint8_t>> many;
+    for (size_t i = 0; i < ReceivedBatch::kCapacity + 3; i++)
+        many.push_back(datagram(kHeartbeat, static_cast<uint8_t>(i)));
+    receive(e, many);
+    EXPECT_EQ(ReceivedBatch::kCapacity + 3, sink_.handed.size());
+    EXPECT_EQ(1, sink_.batches) << "one end of batch, after the read";
+}
+
+}  // namespace
+}  // namespace mavbond
