@@ -6,11 +6,13 @@
 //   T(const mavbond_host_api* api, mavbond_host* host);
 //   int init(const mavbond_config* cfg, char* err, size_t err_len);   // 0, or a message in err
 //   mavbond_verdict on_ingress(const mavbond_frame*, mavbond_frame_notes*, const mavbond_link*);
-//     (or returning void: an observer that never drops)
+//     (or returning void: an observer that never drops), called for each frame of a batch in
+//     turn: the batch is the ABI's, T sees one frame at a time with its code inlined in the loop
 // and, when it needs them:
 //   void on_link(const mavbond_link* link, mavbond_link_event event);
-//   size_t status_json(char* buf, size_t len);   // the length it needed, like snprintf
+//   void status(mavbond::JsonOut& out);           // one JSON object for the status socket
 //   void metrics(mavbond::MetricOut& out);        // out.counter(...), out.gauge(...)
+// The host hands a filter only the links and frames of its scope.
 //
 // In the plugin:
 //   MAVBOND_FILTER_PLUGIN(MyFilter, "myfilter", "1.0", "what it does", kOptions)
@@ -24,6 +26,7 @@
 #include <new>
 #include <type_traits>
 
+#include "mavbond/json.hpp"
 #include "mavbond/plugin.h"
 
 namespace mavbond {
@@ -81,17 +84,19 @@ struct FilterPlugin {
 
     static void destroy(void* self) noexcept { delete static_cast<T*>(self); }
 
-    static mavbond_verdict on_ingress(void* self, const mavbond_frame* f,
-                                      mavbond_frame_notes* notes, const mavbond_link* from) noexcept {
-        try {
-            T& t = *static_cast<T*>(self);
-            if constexpr (std::is_void_v<decltype(t.on_ingress(f, notes, from))>)
-                t.on_ingress(f, notes, from);
-            else
-                return t.on_ingress(f, notes, from);
-        } catch (...) {
+    static void on_ingress(void* self, mavbond_received* frames, size_t count) noexcept {
+        T& t = *static_cast<T*>(self);
+        for (size_t i = 0; i < count; i++) {
+            mavbond_received& r = frames[i];
+            try {
+                if constexpr (std::is_void_v<decltype(t.on_ingress(r.frame, r.notes, r.from))>)
+                    t.on_ingress(r.frame, r.notes, r.from);
+                else
+                    r.verdict = t.on_ingress(r.frame, r.notes, r.from);
+            } catch (...) {
+                r.verdict = MAVBOND_PASS;
+            }
         }
-        return MAVBOND_PASS;
     }
 
     static void on_link(void* self, const mavbond_link* link, mavbond_link_event event) noexcept {
@@ -102,8 +107,10 @@ struct FilterPlugin {
     }
 
     static size_t status_json(void* self, char* buf, size_t len) noexcept {
+        JsonOut out(buf, len);
         try {
-            return static_cast<T*>(self)->status_json(buf, len);
+            static_cast<T*>(self)->status(out);
+            return out.length();
         } catch (...) {
             if (buf && len > 0)
                 buf[0] = '\0';
@@ -134,7 +141,7 @@ struct FilterPlugin {
         d.on_ingress = on_ingress;
         if constexpr (requires(T t) { t.on_link(nullptr, MAVBOND_LINK_ADDED); })
             d.on_link = on_link;
-        if constexpr (requires(T t, char* b) { t.status_json(b, size_t{0}); })
+        if constexpr (requires(T t, JsonOut& o) { t.status(o); })
             d.status_json = status_json;
         if constexpr (requires(T t, MetricOut& o) { t.metrics(o); })
             d.metrics = metrics;

@@ -20,8 +20,9 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change; the host accepts exactly its own version. */
-#define MAVBOND_PLUGIN_ABI_VERSION 3u  /* 2: the metrics hook; 3: stream positions, arrival
-                                          * times, bond positions, bond members */
+#define MAVBOND_PLUGIN_ABI_VERSION 4u  /* 2: the metrics hook; 3: stream positions, arrival
+                                          * times, bond positions, bond members; 4: ingress
+                                          * in batches, scope matched by the host, provides */
 #define MAVBOND_PLUGIN_ENTRY_SYMBOL "mavbond_plugin_entry"
 
 #define MAVBOND_EXPORT __attribute__((visibility("default")))
@@ -106,7 +107,13 @@ typedef struct mavbond_frame_notes {
 
 #define MAVBOND_NO_BOND UINT32_MAX
 
-/* An endpoint (route target) as plugins see it. Ids are dense and stable while it exists. */
+/* What an instance declares it does for the bonds in its scope (ABI 4: host_api.provides). */
+#define MAVBOND_PROVIDES_ALIGNED_POSITIONS 0x1u /* notes MAVBOND_NOTE_POSITION on the frames it
+                                                 * places, one numbering for links that number
+                                                 * the stream each their own way: the bond may
+                                                 * renumber (`renumber: true`) */
+
+/* A link (route target) as plugins see it. Ids are dense and stable while it exists. */
 typedef struct mavbond_link {
     uint32_t struct_size;
     uint32_t id;
@@ -115,6 +122,15 @@ typedef struct mavbond_link {
     const char *bond_name;    /* NULL when not in a bond */
     uint32_t priority;        /* position of the link among its bond's members (0 first) */
 } mavbond_link;
+
+/* ABI 4: one frame of an ingress batch, as a filter gets it. */
+typedef struct mavbond_received {
+    const mavbond_frame *frame;
+    mavbond_frame_notes *notes;   /* what the filters before this one noted */
+    const mavbond_link *from;
+    mavbond_verdict verdict;      /* the filter's answer: the host sets MAVBOND_PASS before the
+                                   * call, a filter that drops the frame writes MAVBOND_DROP */
+} mavbond_received;
 
 /* The host's own counters of a link (parsing and transmit), for observers such as stats. */
 typedef struct mavbond_link_counters {
@@ -206,7 +222,8 @@ typedef struct mavbond_host_api {
     int (*timer_add)(mavbond_host *h, uint64_t period_ns, int (*cb)(void *user), void *user,
                      uint64_t *out_id);
     void (*timer_cancel)(mavbond_host *h, uint64_t id);
-    /* Links currently known, in id order: fills up to max, returns how many exist. */
+    /* The links in this instance's scope now, in id order: fills up to max, returns how
+     * many there are. (ABI 4: only those in scope, as on_link and on_ingress see them.) */
     size_t (*links)(mavbond_host *h, const mavbond_link **out, size_t max);
     /* The id of a bond by name, or -ENOENT. */
     int (*bond_by_name)(mavbond_host *h, const char *name, uint32_t *out_bond_id);
@@ -229,7 +246,9 @@ typedef struct mavbond_host_api {
     /* Writes "file:line:column: filter 'NAME': option 'KEY': MESSAGE" into err (for create). */
     void (*cfg_error)(const mavbond_config *c, const char *key, const char *message, char *err,
                       size_t err_len);
-    /* The bonds (names) and endpoints (names) this instance is scoped to; NULL/0: everywhere. */
+    /* The bonds (names) and endpoints (names) this instance is scoped to; NULL/0: everywhere.
+     * The host matches links against them itself: a plugin reads them only to check names
+     * in its options at create. */
     void (*scope)(const mavbond_config *c, const char *const **bonds, size_t *bond_count,
                   const char *const **endpoints, size_t *endpoint_count);
     /* ABI 3: the endpoints the config puts in bond `bond`, in config order (their links'
@@ -243,6 +262,9 @@ typedef struct mavbond_host_api {
     /* ABI 3: as cfg_error, at item `index` of a list option (the item's own line:column). */
     void (*cfg_item_error)(const mavbond_config *c, const char *key, size_t index,
                            const char *message, char *err, size_t err_len);
+    /* ABI 4: declares, during create, what the instance does for the bonds in its scope
+     * (MAVBOND_PROVIDES_*): the host checks a bond's needs against it. */
+    void (*provides)(mavbond_host *h, uint32_t what);
 } mavbond_host_api;
 
 typedef struct mavbond_plugin_descriptor {
@@ -257,9 +279,9 @@ typedef struct mavbond_plugin_descriptor {
     int (*create)(const mavbond_host_api *api, mavbond_host *h, const mavbond_config *cfg,
                   void **out_self, char *err, size_t err_len);
     void (*destroy)(void *self);
-    /* Every frame received on a link in scope, after CRC checks, before routing. May be NULL. */
-    mavbond_verdict (*on_ingress)(void *self, const mavbond_frame *f, mavbond_frame_notes *notes,
-                                  const mavbond_link *from);
+    /* Every frame received on a link in scope, after CRC checks, before routing: the frames
+     * of one receive round in arrival order, `count` at a time. May be NULL. (ABI 4) */
+    void (*on_ingress)(void *self, mavbond_received *frames, size_t count);
     /* Every (frame, destination link in scope) before the frame is queued. May be NULL. */
     mavbond_verdict (*on_egress)(void *self, const mavbond_frame *f, const mavbond_link *to);
     /* Links come and go (TCP clients, UDP peers). May be NULL. */

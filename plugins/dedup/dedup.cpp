@@ -72,7 +72,6 @@ constexpr uint64_t kEvictLogPeriod = 10 * kSecond;
 constexpr uint32_t kSampleStreams = 4096;
 // Upper bound for max_entries: a typo must not allocate gigabytes at start.
 constexpr int64_t kMaxEntriesLimit = int64_t{1} << 24;
-constexpr uint32_t kScopeCache = 256;
 
 enum class HashKind { murmur3_128, murmur3_32 };
 enum class KeyKind { frame, content };
@@ -223,15 +222,8 @@ public:
 
     mavbond_verdict on_ingress(const mavbond_frame* f, mavbond_frame_notes* notes,
                                const mavbond_link* from);
-    void on_link(const mavbond_link* link, mavbond_link_event event);
-    std::string status() const;
+    void status(JsonOut& out) const;
     void metrics(MetricOut& out) const;
-    size_t status_json(char* buf, size_t len) const {
-        std::string s = status();
-        if (buf && len > 0)
-            std::snprintf(buf, len, "%s", s.c_str());
-        return s.size();
-    }
 
 private:
     struct Key {
@@ -256,8 +248,8 @@ private:
         bool unique;
     };
 
-    bool in_scope(const mavbond_link* link);
-    bool scope_allows(const mavbond_link* link) const;
+    /// Whether frames of `link` are deduplicated: a member of a bond, within the tables' bounds.
+    bool deduplicates(const mavbond_link* link);
     Key hash(const mavbond_frame* f) const;
     uint32_t stream_of(uint32_t bond, uint8_t sysid, uint8_t compid);
     Lane& lane_of(const Arrival& a);
@@ -299,10 +291,6 @@ private:
 
     const mavbond_host_api* api_;
     mavbond_host* host_;
-    const char* const* scope_bonds_ = nullptr;
-    const char* const* scope_endpoints_ = nullptr;
-    size_t scope_bond_count_ = 0, scope_endpoint_count_ = 0;
-    uint8_t scope_cache_[kScopeCache] = {};  // 0 unknown, 1 in scope, 2 not (by link id)
 
     uint64_t window_ns_ = 0;
     HashKind hash_ = HashKind::murmur3_128;
@@ -355,6 +343,8 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
             key_ = KeyKind::frame;
         } else if (std::strcmp(text, "content") == 0) {
             key_ = KeyKind::content;
+            // Each link numbers its copies its own way; the positions noted are the bond's.
+            api_->provides(host_, MAVBOND_PROVIDES_ALIGNED_POSITIONS);
         } else {
             api_->cfg_error(cfg, "key", "must be frame or content", err, err_len);
             return -1;
@@ -370,7 +360,6 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
         api_->cfg_error(cfg, "max_entries", "must be between 1 and 16777216", err, err_len);
         return -1;
     }
-    api_->scope(cfg, &scope_bonds_, &scope_bond_count_, &scope_endpoints_, &scope_endpoint_count_);
     reboot_jump_ns_ = std::max({kMinRebootJump, 2 * window_ns_, 2 * stale_after_ns_});
 
     capacity_ = static_cast<uint32_t>(max_entries);
@@ -391,21 +380,7 @@ int Dedup::init(const mavbond_config* cfg, char* err, size_t err_len) {
     return 0;
 }
 
-bool Dedup::scope_allows(const mavbond_link* link) const {
-    if (scope_bond_count_ == 0 && scope_endpoint_count_ == 0)
-        return true;
-    for (size_t i = 0; i < scope_bond_count_; i++) {
-        if (link->bond_name && std::strcmp(scope_bonds_[i], link->bond_name) == 0)
-            return true;
-    }
-    for (size_t i = 0; i < scope_endpoint_count_; i++) {
-        if (link->name && std::strcmp(scope_endpoints_[i], link->name) == 0)
-            return true;
-    }
-    return false;
-}
-
-bool Dedup::in_scope(const mavbond_link* link) {
+bool Dedup::deduplicates(const mavbond_link* link) {
     if (link->bond_id == MAVBOND_NO_BOND)
         return false;
     if (link->bond_id >= kMaxBonds || link->priority >= kMaxMembers) {
@@ -419,18 +394,7 @@ bool Dedup::in_scope(const mavbond_link* link) {
         }
         return false;
     }
-    if (link->id >= kScopeCache)
-        return scope_allows(link);
-    uint8_t& cached = scope_cache_[link->id];
-    if (cached == 0)
-        cached = scope_allows(link) ? 1 : 2;
-    return cached == 1;
-}
-
-void Dedup::on_link(const mavbond_link* link, mavbond_link_event) {
-    // Ids are reused after a link goes away: its scope is decided again on its next frame.
-    if (link && link->id < kScopeCache)
-        scope_cache_[link->id] = 0;
+    return true;
 }
 
 Dedup::Key Dedup::hash(const mavbond_frame* f) const {
@@ -997,7 +961,7 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
     // good copy from another link look like a duplicate.
     if (notes && (notes->flags & MAVBOND_NOTE_DROPPED))
         return MAVBOND_PASS;
-    if (!from || !in_scope(from))
+    if (!from || !deduplicates(from))
         return MAVBOND_PASS;
     uint64_t t = f->rx_time_ns ? f->rx_time_ns : api_->now_ns(host_);
     // Arrivals come in order; a stream endpoint's read time may trail a datagram's kernel time.
@@ -1069,67 +1033,34 @@ const char* Dedup::link_name(uint32_t id) const {
     return "?";
 }
 
-void append_json_string(std::string& out, const char* s) {
-    out += '"';
-    for (; s && *s; s++) {
-        char c = *s;
-        if (c == '"' || c == '\\') {
-            out += '\\';
-            out += c;
-        } else if (static_cast<unsigned char>(c) < 0x20) {
-            char esc[8];
-            std::snprintf(esc, sizeof esc, "\\u%04x", c);
-            out += esc;
-        } else {
-            out += c;
-        }
-    }
-    out += '"';
-}
-
-std::string Dedup::status() const {
-    char num[160];
-    std::string out = "{";
-    std::snprintf(num, sizeof num, "\"window_ms\":%.1f,", static_cast<double>(window_ns_) / kMs);
-    out += num;
-    out += "\"hash\":\"";
-    out += kHashNames[static_cast<int>(hash_)];
-    out += "\",\"key\":\"";
-    out += kKeyNames[static_cast<int>(key_)];
-    out += "\",";
-    std::snprintf(num, sizeof num,
-                  "\"drop_stale\":%s,\"stale_after_ms\":%.1f,\"entries\":%u,\"instances\":%u,"
-                  "\"max_entries\":%u,",
-                  drop_stale_ ? "true" : "false", static_cast<double>(stale_after_ns_) / kMs,
-                  fresh_ - free_count_, ring_count_, capacity_);
-    out += num;
-    std::snprintf(num, sizeof num,
-                  "\"evicted_early\":%" PRIu64 ",\"untracked_sources\":%" PRIu64
-                  ",\"untracked_streams\":%" PRIu64 ",\"links\":[",
-                  evicted_early_, untracked_sources_, untracked_samples_);
-    out += num;
+void Dedup::status(JsonOut& out) const {
+    out.raw("{\"window_ms\":%.1f,\"hash\":\"%s\",\"key\":\"%s\",",
+            static_cast<double>(window_ns_) / kMs, kHashNames[static_cast<int>(hash_)],
+            kKeyNames[static_cast<int>(key_)]);
+    out.raw("\"drop_stale\":%s,\"stale_after_ms\":%.1f,\"entries\":%u,\"instances\":%u,"
+            "\"max_entries\":%u,",
+            drop_stale_ ? "true" : "false", static_cast<double>(stale_after_ns_) / kMs,
+            fresh_ - free_count_, ring_count_, capacity_);
+    out.raw("\"evicted_early\":%" PRIu64 ",\"untracked_sources\":%" PRIu64
+            ",\"untracked_streams\":%" PRIu64 ",\"links\":[",
+            evicted_early_, untracked_sources_, untracked_samples_);
     bool first = true;
     for (const Member& mem : members_) {
         if (mem.link_id == kNone)
             continue;
-        out += first ? "{\"name\":" : ",{\"name\":";
+        out.raw("%s", first ? "{\"name\":" : ",{\"name\":");
         first = false;
-        append_json_string(out, link_name(mem.link_id));
-        std::snprintf(num, sizeof num,
-                      ",\"passed\":%" PRIu64 ",\"duplicates\":%" PRIu64 ",\"stale\":%" PRIu64
-                      ",\"aligned\":%" PRIu64 ",\"aligned_by_time\":%" PRIu64
-                      ",\"realigned\":%" PRIu64 ",\"lag_ms\":",
-                      mem.passed, mem.duplicates, mem.stale, mem.aligned, mem.by_time,
-                      mem.realigned);
-        out += num;
+        out.str(link_name(mem.link_id));
+        out.raw(",\"passed\":%" PRIu64 ",\"duplicates\":%" PRIu64 ",\"stale\":%" PRIu64
+                ",\"aligned\":%" PRIu64 ",\"aligned_by_time\":%" PRIu64 ",\"realigned\":%" PRIu64
+                ",\"lag_ms\":",
+                mem.passed, mem.duplicates, mem.stale, mem.aligned, mem.by_time, mem.realigned);
         if (mem.lag_known)
-            std::snprintf(num, sizeof num, "%.1f}", static_cast<double>(mem.lag_ns) / kMs);
+            out.raw("%.1f}", static_cast<double>(mem.lag_ns) / kMs);
         else
-            std::snprintf(num, sizeof num, "null}");
-        out += num;
+            out.raw("null}");
     }
-    out += "]}";
-    return out;
+    out.raw("]}");
 }
 
 void Dedup::metrics(MetricOut& out) const {

@@ -85,7 +85,7 @@ public:  // the simulations below feed through it
         mavbond_frame_notes notes{};
         notes.struct_size = sizeof notes;
         notes.flags = note_flags;
-        mavbond_verdict v = plugin_->on_ingress(self_, &f, &notes, &link);
+        mavbond_verdict v = host_.ingress(f, notes, link);
         if (notes_out)
             *notes_out = notes;
         return v;
@@ -730,14 +730,14 @@ TEST_F(DedupTest, HotPathAllocatesNothing) {
         expected_passed += copies[arrivals[i].source]++ == 0 && i >= warm;
     for (size_t i = 0; i < warm; i++) {
         mavbond_frame_notes notes{};
-        plugin_->on_ingress(self_, &views[i], &notes, arrivals[i].link == 0 ? a_ : b_);
+        host_.ingress(views[i], notes, arrivals[i].link == 0 ? *a_ : *b_);
     }
     size_t passed = 0;
     uint64_t allocations_before = allocations();
     auto start = std::chrono::steady_clock::now();
     for (size_t i = warm; i < views.size(); i++) {
         mavbond_frame_notes notes{};
-        passed += plugin_->on_ingress(self_, &views[i], &notes, arrivals[i].link == 0 ? a_ : b_) ==
+        passed += host_.ingress(views[i], notes, arrivals[i].link == 0 ? *a_ : *b_) ==
                   MAVBOND_PASS;
     }
     auto elapsed = std::chrono::steady_clock::now() - start;

@@ -29,7 +29,6 @@
 #include <string>
 #include <vector>
 
-#include "json_out.h"
 #include "mavbond/filter.hpp"
 #include "mavbond/source_table.hpp"
 
@@ -37,7 +36,7 @@ namespace {
 
 using mavbond::History128;
 using mavbond::SourceTable;
-using mavbond_plugins::JsonOut;
+using mavbond::JsonOut;
 
 constexpr uint64_t kMs = 1'000'000;
 constexpr uint64_t kSecond = 1'000'000'000;
@@ -262,7 +261,7 @@ public:
     mavbond_verdict on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
                                const mavbond_link* from);
     void on_link(const mavbond_link* link, mavbond_link_event event);
-    size_t status_json(char* buf, size_t len);
+    void status(JsonOut& out);
     void metrics(mavbond::MetricOut& out);
     int tick();
 
@@ -416,7 +415,7 @@ uint32_t LinkSwitch::rank_of(const char* name) const {
     return kNone;
 }
 
-/// Takes a link the host told us about into links_ and, when its bond is in scope, bonds_.
+/// Takes a link the host told us about (one in scope) into links_ and, in a bond, bonds_.
 void LinkSwitch::adopt(const mavbond_link* l) {
     if (l->id >= links_.size())
         links_.resize(l->id + 1);
@@ -430,11 +429,6 @@ void LinkSwitch::adopt(const mavbond_link* l) {
     }
     link.member_order = l->priority;
     if (l->bond_id == MAVBOND_NO_BOND || !l->bond_name)
-        return;
-    bool in_scope = scope_bonds_.empty() ||
-                    std::find(scope_bonds_.begin(), scope_bonds_.end(), l->bond_name) !=
-                        scope_bonds_.end();
-    if (!in_scope)
         return;
     if (l->bond_id >= bond_index_.size())
         bond_index_.resize(l->bond_id + 1, kNone);
@@ -737,9 +731,8 @@ void LinkSwitch::make_active(Bond& b, uint32_t link_id, Reason reason, const cha
     api_->log(h_, MAVBOND_LOG_NOTICE, line);
 }
 
-size_t LinkSwitch::status_json(char* buf, size_t len) {
+void LinkSwitch::status(JsonOut& out) {
     uint64_t now = api_->now_ns(h_);
-    JsonOut out(buf, len);
     out.raw("{\"bonds\":[");
     for (size_t i = 0; i < bonds_.size(); i++) {
         Bond& b = bonds_[i];
@@ -777,7 +770,6 @@ size_t LinkSwitch::status_json(char* buf, size_t len) {
         out.raw("]}");
     }
     out.raw("]}");
-    return out.length();
 }
 
 void LinkSwitch::metrics(mavbond::MetricOut& out) {

@@ -90,7 +90,7 @@ protected:
         mavbond_frame_notes notes{};
         notes.struct_size = sizeof notes;
         notes.flags = note_flags;
-        return plugin_->on_ingress(self_, &f, &notes, &host_.link(link));
+        return host_.ingress(f, notes, host_.link(link));
     }
 
     /// A frame from each sender that is on every `period` (50 frames/s by default).
@@ -177,9 +177,7 @@ protected:
         auto it = host_.active_link.find(id);
         if (it == host_.active_link.end())
             return "";
-        const mavbond_link* links[16];
-        size_t n = host_.links(links, 16);
-        return it->second < n ? links[it->second]->name : "?";
+        return host_.link_name(it->second);
     }
 
     std::string status() {
@@ -374,7 +372,7 @@ TEST_F(LinkSwitchTest, NoAllocationPerFrame) {
                 f.stream_flags = step.flags;
                 mavbond_frame_notes notes{};
                 notes.struct_size = sizeof notes;
-                plugin_->on_ingress(self_, &f, &notes, links[l]);
+                host_.ingress(f, notes, *links[l]);
             }
             host_.advance(milliseconds(5));
         }

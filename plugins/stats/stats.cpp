@@ -16,13 +16,12 @@
 #include <string>
 #include <vector>
 
-#include "json_out.h"
 #include "mavbond/filter.hpp"
 #include "seq_loss.h"
 
 namespace {
 
-using mavbond_plugins::JsonOut;
+using mavbond::JsonOut;
 using mavbond_plugins::loss_fraction;
 using mavbond_plugins::SeqStep;
 using mavbond_plugins::StreamLoss;
@@ -100,7 +99,6 @@ struct BondTotals {
 
 struct LinkStats {
     bool present = false;
-    bool in_scope = false;
     std::string name;
     uint32_t bond = kNone;  // index into Stats::bonds_
     uint32_t member = 0;    // position among the bond's members
@@ -132,13 +130,12 @@ public:
     void on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
                     const mavbond_link* from);
     void on_link(const mavbond_link* link, mavbond_link_event event);
-    size_t status_json(char* buf, size_t len);
+    void status(JsonOut& out);
     void metrics(mavbond::MetricOut& out);
     int tick();
 
 private:
     void adopt(const mavbond_link* l);
-    bool link_in_scope(const mavbond_link* l) const;
     void refresh_counters(LinkStats& l);
     void write_csv(double t);
     void write_log();
@@ -149,7 +146,6 @@ private:
     bool log_ = true;
     std::string csv_path_;
     FILE* csv_ = nullptr;
-    std::vector<std::string> scope_bonds_, scope_endpoints_;
     uint64_t start_ns_ = 0;
     uint64_t intervals_ = 0;
     std::vector<LinkStats> links_;      // by link id
@@ -187,13 +183,6 @@ int Stats::init(const mavbond_config* cfg, char* err, size_t err_len) {
         }
     }
 
-    const char* const* bonds = nullptr;
-    const char* const* endpoints = nullptr;
-    size_t bond_count = 0, endpoint_count = 0;
-    api_->scope(cfg, &bonds, &bond_count, &endpoints, &endpoint_count);
-    scope_bonds_.assign(bonds, bonds + bond_count);
-    scope_endpoints_.assign(endpoints, endpoints + endpoint_count);
-
     start_ns_ = api_->now_ns(h_);
     size_t n = api_->links(h_, nullptr, 0);
     std::vector<const mavbond_link*> all(n);
@@ -212,18 +201,6 @@ int Stats::init(const mavbond_config* cfg, char* err, size_t err_len) {
     return 0;
 }
 
-/// No scope: everything. Otherwise a link is in scope through its bond or its own name.
-bool Stats::link_in_scope(const mavbond_link* l) const {
-    if (scope_bonds_.empty() && scope_endpoints_.empty())
-        return true;
-    if (l->bond_name && std::find(scope_bonds_.begin(), scope_bonds_.end(), l->bond_name) !=
-                            scope_bonds_.end())
-        return true;
-    return l->name &&
-           std::find(scope_endpoints_.begin(), scope_endpoints_.end(), l->name) !=
-               scope_endpoints_.end();
-}
-
 void Stats::adopt(const mavbond_link* l) {
     if (l->id >= links_.size())
         links_.resize(l->id + 1);
@@ -233,9 +210,8 @@ void Stats::adopt(const mavbond_link* l) {
         link.present = true;
         link.name = l->name ? l->name : "?";
     }
-    link.in_scope = link_in_scope(l);
     link.member = l->priority;
-    if (!link.in_scope || l->bond_id == MAVBOND_NO_BOND || !l->bond_name)
+    if (l->bond_id == MAVBOND_NO_BOND || !l->bond_name)
         return;
     if (l->bond_id >= bond_index_.size())
         bond_index_.resize(l->bond_id + 1, kNone);
@@ -335,7 +311,7 @@ int Stats::tick() {
     uint64_t now = api_->now_ns(h_);
     intervals_++;
     for (LinkStats& l : links_) {
-        if (!l.present || !l.in_scope)
+        if (!l.present)
             continue;
         refresh_counters(l);
         l.interval = LinkTotals{l.total.frames - l.prev.frames,
@@ -398,7 +374,7 @@ void csv_field(FILE* out, const char* s) {
 /// the kind stay empty; `active` is 1/0 for a bond member, the active link's name for a bond.
 void Stats::write_csv(double t) {
     for (const LinkStats& l : links_) {
-        if (!l.present || !l.in_scope)
+        if (!l.present)
             continue;
         const LinkTotals& i = l.interval;
         fprintf(csv_, "%.3f,link,", t);
@@ -479,7 +455,7 @@ void Stats::write_log() {
         line += ")";
     }
     for (const LinkStats& l : links_) {
-        if (!l.present || !l.in_scope || l.bond != kNone)
+        if (!l.present || l.bond != kNone)
             continue;
         line += line.empty() ? "" : "; ";
         add_link(l);
@@ -488,14 +464,13 @@ void Stats::write_log() {
         api_->log(h_, MAVBOND_LOG_INFO, line.c_str());
 }
 
-size_t Stats::status_json(char* buf, size_t len) {
-    JsonOut out(buf, len);
+void Stats::status(JsonOut& out) {
     out.raw("{\"interval_s\":");
     out.num(static_cast<double>(interval_ns_) / 1e9);
     out.raw(",\"intervals\":%llu,\"links\":[", static_cast<unsigned long long>(intervals_));
     bool first = true;
     for (LinkStats& l : links_) {
-        if (!l.present || !l.in_scope)
+        if (!l.present)
             continue;
         refresh_counters(l);  // the host's counters are current even between intervals
         const LinkTotals& t = l.total;
@@ -588,7 +563,6 @@ size_t Stats::status_json(char* buf, size_t len) {
         out.raw("}}");
     }
     out.raw("]}");
-    return out.length();
 }
 
 /// Counters only grow, so loss is given as expected and received frames (lost = expected -
@@ -596,7 +570,7 @@ size_t Stats::status_json(char* buf, size_t len) {
 /// 1 - rate(received) / rate(expected) is the loss over any window Prometheus looks at.
 void Stats::metrics(mavbond::MetricOut& out) {
     for (LinkStats& l : links_) {
-        if (!l.present || !l.in_scope)
+        if (!l.present)
             continue;
         refresh_counters(l);
         const LinkTotals& t = l.total;

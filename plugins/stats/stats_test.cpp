@@ -179,7 +179,7 @@ protected:
         notes.flags = flags;
         notes.skew_ns = skew_ns;
         notes.first_link_id = first.empty() ? 0 : host_.link(first).id;
-        return plugin_->on_ingress(self_, &f, &notes, &host_.link(link));
+        return host_.ingress(f, notes, host_.link(link));
     }
 
     std::string status() {

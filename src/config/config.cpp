@@ -210,7 +210,6 @@ private:
     std::map<std::string, YAML::Mark> bond_names_;
     std::vector<BondRef> bond_refs_;
     std::vector<ScopeRef> scope_refs_;
-    std::vector<std::pair<std::string, YAML::Mark>> renumber_refs_;  // bond, its `renumber`
 };
 
 void Parser::check_keys(const MapView& view, const std::string& ctx,
@@ -642,8 +641,7 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
     }
     if (const Entry* e = view.find("renumber")) {
         bond.renumber = boolean(*e, ctx);
-        if (bond.renumber)
-            renumber_refs_.emplace_back(bond.name, value_mark(*e));
+        bond.renumber_mark = source_mark(value_mark(*e));
     }
     config_.bonds.push_back(std::move(bond));
 }
@@ -806,22 +804,6 @@ void Parser::cross_check() {
             fail(bond_names_.at(bond.name),
                  "bond '" + bond.name + "' has no member endpoint (set 'bond: " + bond.name +
                      "' on at least one endpoint)");
-    }
-    // Renumbering learns each link's numbering from the copies dedup (key: content) drops.
-    for (const auto& [bond, mark] : renumber_refs_) {
-        bool found = false;
-        for (const auto& f : config_.filters) {
-            bool scoped = (f.bonds.empty() && f.endpoints.empty()) ||
-                          std::find(f.bonds.begin(), f.bonds.end(), bond) != f.bonds.end();
-            bool content = std::any_of(f.options.begin(), f.options.end(), [](const auto& o) {
-                return o.key == "key" && o.value == "content";
-            });
-            found = found || (f.enabled && f.plugin == "dedup" && scoped && content);
-        }
-        if (!found)
-            fail(mark, "bond '" + bond + "': 'renumber' needs a dedup filter with 'key: content' "
-                       "on this bond, enabled and scoped to it by 'bonds:' or unscoped (with "
-                       "key: frame the copies already share one numbering)");
     }
     for (const auto& ref : scope_refs_) {
         bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0
@@ -1041,7 +1023,7 @@ EndpointConfig unmarked(EndpointConfig c) {
     return c;
 }
 BondConfig unmarked(BondConfig c) {
-    c.mark = {};
+    c.mark = c.renumber_mark = {};
     return c;
 }
 FilterConfig unmarked(FilterConfig c) {

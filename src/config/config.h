@@ -84,8 +84,10 @@ struct BondConfig {
     enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
     SourceMark mark;
     /// Rewrite the sequence number of delivered unsigned frames so a GCS sees the bond's real
-    /// loss (needs a dedup filter with key: content on the bond; see src/routing/renumber.h).
+    /// loss (needs a filter that provides aligned positions on the bond, dedup with key:
+    /// content; the filter chain checks it; see src/routing/renumber.h).
     bool renumber = false;
+    SourceMark renumber_mark;  // where `renumber` is set
     bool operator==(const BondConfig&) const = default;
 };
 

@@ -68,6 +68,7 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
         inst->config = std::move(pc.value());
         inst->view.config = inst->config.get();
         inst->host.services = chain.get();
+        inst->host.index = static_cast<uint32_t>(chain->instances_.size());
         int same = 0;
         for (const auto& other : chain->instances_)
             same += other->entry->plugin == entry.plugin ? 1 : 0;
@@ -81,10 +82,33 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
                 return make_error(std::string(err) + " (" + plugin->path() + ": create failed)");
             return make_error(at + plugin->path() + ": create failed: " + (err[0] ? err : "no reason given"));
         }
-        log_info("[filter:%s] loaded from %s", inst->host.name.c_str(), plugin->path().c_str());
         chain->instances_.push_back(std::move(inst));
     }
+    if (auto r = chain->check_bonds(config); !r)
+        return r.error();
+    // Only a chain that stands is told of: an error is the first line a failed start prints.
+    for (const auto& inst : chain->instances_)
+        log_info("[filter:%s] loaded from %s", inst->host.name.c_str(), inst->plugin->path().c_str());
     return chain;
+}
+
+Result<void> FilterChain::check_bonds(const Config& config) const {
+    for (const BondConfig& bond : config.bonds) {
+        if (!bond.renumber)
+            continue;
+        // Renumbering gives out the bond's positions of each frame: some filter must align
+        // the links' own numberings into them.
+        bool provided = std::any_of(instances_.begin(), instances_.end(), [&](const auto& inst) {
+            return (inst->host.provides & MAVBOND_PROVIDES_ALIGNED_POSITIONS) &&
+                   inst->config->covers_bond(bond.name);
+        });
+        if (!provided)
+            return make_error(where(bond.renumber_mark) + ": bond '" + bond.name +
+                              "': 'renumber' needs a dedup filter with 'key: content' on this "
+                              "bond, enabled and scoped to it by 'bonds:' or unscoped (with key: "
+                              "frame the copies already share one numbering)");
+    }
+    return {};
 }
 
 FilterChain::~FilterChain() {
@@ -95,15 +119,6 @@ FilterChain::~FilterChain() {
     }
     timers_.clear();  // no callback into a plugin after this
     instances_.clear();
-}
-
-bool FilterChain::in_scope(const Instance& inst, const Link& link) const {
-    const FilterConfig& e = *inst.entry;
-    if (e.bonds.empty() && e.endpoints.empty())
-        return true;
-    const std::string& bond = link.bond();
-    return (!bond.empty() && std::find(e.bonds.begin(), e.bonds.end(), bond) != e.bonds.end()) ||
-           std::find(e.endpoints.begin(), e.endpoints.end(), link.endpoint_name()) != e.endpoints.end();
 }
 
 void FilterChain::on_link(const Link& link, bool added) {
@@ -126,22 +141,17 @@ void FilterChain::on_link(const Link& link, bool added) {
         v.positions.clear();
         v.scope_mask = 0;
         for (size_t i = 0; i < instances_.size(); i++) {
-            if (in_scope(*instances_[i], link))
+            if (instances_[i]->config->in_scope(link.bond(), link.endpoint_name()))
                 v.scope_mask |= uint64_t{1} << i;
         }
-    }
-    link_list_.clear();
-    for (const auto& l : links_) {
-        if (l.source && (added || &l != &v))
-            link_list_.push_back(&l.link);
+    } else {
+        v.source = nullptr;  // no longer among links() while the instances hear it go
     }
     for (size_t i = 0; i < instances_.size(); i++) {
         const auto& d = instances_[i]->plugin->descriptor();
         if (d.on_link && (v.scope_mask >> i & 1))
             d.on_link(instances_[i]->self, &v.link, added ? MAVBOND_LINK_ADDED : MAVBOND_LINK_REMOVED);
     }
-    if (!added)
-        v.source = nullptr;
 }
 
 mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
@@ -168,34 +178,69 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
 }
 
 void FilterChain::on_ingress(ReceivedFrame* const* frames, size_t count, Ingress* out) {
+    // The batch as plugins see it: the frames in any filter's scope, each with its stream
+    // position (tracked once, here, for the frames shown) and its notes.
+    if (c_frames_.size() < count) {
+        c_frames_.resize(count);
+        notes_.resize(count);
+    }
+    received_.clear();
+    shown_from_.clear();
+    uint64_t any_scope = 0, all_scope = ~uint64_t{0};
     for (size_t k = 0; k < count; k++) {
         const ReceivedFrame& r = *frames[k];
         LinkView& v = links_[r.from->id()];
         if (v.scope_mask == 0 || !r.routed)
             continue;
-        mavbond_frame f = to_c_frame(r.frame, r.arrival);
+        any_scope |= v.scope_mask;
+        all_scope &= v.scope_mask;
+        mavbond_frame& f = c_frames_[received_.size()];
+        f = to_c_frame(r.frame, r.arrival);
         StreamStep step = v.positions.track(r.frame.sysid, r.frame.compid, r.frame.seq);
         f.stream_pos = step.pos;
         f.stream_lost = step.lost;
         f.stream_flags = step.flags;
-        mavbond_frame_notes notes{};
+        mavbond_frame_notes& notes = notes_[received_.size()];
+        notes = mavbond_frame_notes{};
         notes.struct_size = sizeof notes;
-        for (size_t i = 0; i < instances_.size(); i++) {
-            if (!(v.scope_mask >> i & 1))
-                continue;
-            Instance& inst = *instances_[i];
-            auto hook = inst.plugin->descriptor().on_ingress;
-            if (!hook)
-                continue;
-            bool already_dropped = notes.flags & MAVBOND_NOTE_DROPPED;
-            if (hook(inst.self, &f, &notes, &v.link) == MAVBOND_DROP && !already_dropped) {
+        received_.push_back(mavbond_received{&f, &notes, &v.link, MAVBOND_PASS});
+        shown_from_.push_back(static_cast<uint32_t>(k));
+    }
+    for (size_t i = 0; i < instances_.size() && !received_.empty(); i++) {
+        const uint64_t bit = uint64_t{1} << i;
+        Instance& inst = *instances_[i];
+        auto hook = inst.plugin->descriptor().on_ingress;
+        if (!hook || !(any_scope & bit))
+            continue;
+        // Usually every frame is in scope (a round of one bond's links) and the batch goes as
+        // it is; otherwise the frames in scope, in order (their notes are shared).
+        std::vector<mavbond_received>* batch = &received_;
+        if (!(all_scope & bit)) {
+            subset_.clear();
+            for (const mavbond_received& r : received_) {
+                if (links_[r.from->id].scope_mask & bit)
+                    subset_.push_back(r);
+            }
+            batch = &subset_;
+        }
+        for (mavbond_received& r : *batch)
+            r.verdict = MAVBOND_PASS;
+        hook(inst.self, batch->data(), batch->size());
+        // After one filter drops a frame, the rest still see it, flagged; only the first drop
+        // counts (see the header).
+        for (const mavbond_received& r : *batch) {
+            if (r.verdict == MAVBOND_DROP && !(r.notes->flags & MAVBOND_NOTE_DROPPED)) {
                 inst.dropped++;
-                notes.flags |= MAVBOND_NOTE_DROPPED;
+                r.notes->flags |= MAVBOND_NOTE_DROPPED;
             }
         }
-        out[k].pass = !(notes.flags & MAVBOND_NOTE_DROPPED);
+    }
+    for (size_t j = 0; j < received_.size(); j++) {
+        const mavbond_frame_notes& notes = notes_[j];
+        Ingress& o = out[shown_from_[j]];
+        o.pass = !(notes.flags & MAVBOND_NOTE_DROPPED);
         if (notes.flags & MAVBOND_NOTE_POSITION)
-            out[k].bond_pos = notes.bond_pos;
+            o.bond_pos = notes.bond_pos;
     }
 }
 
@@ -344,10 +389,17 @@ void FilterChain::timer_cancel(uint64_t id) {
     defer_erase(id);
 }
 
-size_t FilterChain::links(const mavbond_link** out, size_t max) {
-    for (size_t i = 0; i < link_list_.size() && i < max; i++)
-        out[i] = link_list_[i];
-    return link_list_.size();
+size_t FilterChain::links(const mavbond_host& h, const mavbond_link** out, size_t max) {
+    const uint64_t bit = uint64_t{1} << h.index;
+    size_t n = 0;
+    for (const LinkView& v : links_) {
+        if (!v.source || !(v.scope_mask & bit))
+            continue;
+        if (n < max)
+            out[n] = &v.link;
+        n++;
+    }
+    return n;
 }
 
 int FilterChain::bond_by_name(const std::string& name, uint32_t* out) {

@@ -51,14 +51,15 @@ private:
         StreamPositions positions;  // of the sources heard on this link
     };
     FilterChain(EventLoop& loop, Router& router);
-    bool in_scope(const Instance& inst, const Link& link) const;
     static mavbond_frame to_c_frame(const Frame& frame, TimePoint rx_time);
+    /// Every bond that renumbers needs an instance that provides aligned positions on it.
+    Result<void> check_bonds(const Config& config) const;
 
     // HostServices (what the plugins' host API calls land on)
     uint64_t now_ns() override;
     uint64_t timer_add(uint64_t period_ns, std::function<bool()> fn) override;
     void timer_cancel(uint64_t id) override;
-    size_t links(const mavbond_link** out, size_t max) override;
+    size_t links(const mavbond_host& h, const mavbond_link** out, size_t max) override;
     int bond_by_name(const std::string& name, uint32_t* out) override;
     int set_active_link(uint32_t bond_id, uint32_t link_id) override;
     int link_counters(uint32_t link_id, mavbond_link_counters* out) override;
@@ -70,11 +71,16 @@ private:
     std::vector<std::unique_ptr<LoadedPlugin>> plugins_;  // destroyed after the instances
     std::vector<std::unique_ptr<Instance>> instances_;
     std::deque<LinkView> links_;  // index = endpoint id; a deque keeps the views where they are
-    std::vector<const mavbond_link*> link_list_;         // registered links, id order
     std::map<uint64_t, EventLoop::Timer> timers_;
     uint64_t next_timer_ = 1;
     std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the chain
     void defer_erase(uint64_t timer_id);
+    // One ingress batch as the instances get it, reused (sized to the largest batch seen).
+    std::vector<mavbond_frame> c_frames_;
+    std::vector<mavbond_frame_notes> notes_;
+    std::vector<mavbond_received> received_;
+    std::vector<uint32_t> shown_from_;       // received_[j] is frame shown_from_[j] of the batch
+    std::vector<mavbond_received> subset_;   // the frames in one instance's scope
 };
 
 }  // namespace mavbond

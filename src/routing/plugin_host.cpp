@@ -1,5 +1,6 @@
 #include "routing/plugin_host.h"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -164,6 +165,20 @@ std::string PluginConfig::item_error_at(const char* key, size_t index,
            "': " + message;
 }
 
+bool PluginConfig::in_scope(const std::string& bond, const std::string& endpoint) const {
+    const FilterConfig& e = entry_;
+    if (e.bonds.empty() && e.endpoints.empty())
+        return true;
+    return (!bond.empty() && std::find(e.bonds.begin(), e.bonds.end(), bond) != e.bonds.end()) ||
+           std::find(e.endpoints.begin(), e.endpoints.end(), endpoint) != e.endpoints.end();
+}
+
+bool PluginConfig::covers_bond(const std::string& bond) const {
+    const FilterConfig& e = entry_;
+    return (e.bonds.empty() && e.endpoints.empty()) ||
+           std::find(e.bonds.begin(), e.bonds.end(), bond) != e.bonds.end();
+}
+
 const std::vector<const char*>* PluginConfig::bond_members(const char* bond) const {
     auto it = member_ptrs_.find(std::string_view(bond));
     return it == member_ptrs_.end() ? nullptr : &it->second;
@@ -192,7 +207,7 @@ struct HostApiImpl {
     }
     static void timer_cancel(mavbond_host* h, uint64_t id) { h->services->timer_cancel(id); }
     static size_t links(mavbond_host* h, const mavbond_link** out, size_t max) {
-        return h->services->links(out, max);
+        return h->services->links(*h, out, max);
     }
     static int bond_by_name(mavbond_host* h, const char* name, uint32_t* out) {
         return name && out ? h->services->bond_by_name(name, out) : -EINVAL;
@@ -279,6 +294,7 @@ struct HostApiImpl {
         c->config->option_refused_ = true;
         snprintf(err, err_len, "%s", text.c_str());
     }
+    static void provides(mavbond_host* h, uint32_t what) { h->provides |= what; }
 };
 
 const mavbond_host_api* host_api() {
@@ -290,7 +306,7 @@ const mavbond_host_api* host_api() {
         HostApiImpl::cfg_int,      HostApiImpl::cfg_duration_ns, HostApiImpl::cfg_percent,
         HostApiImpl::cfg_string,   HostApiImpl::cfg_strings,   HostApiImpl::cfg_error,
         HostApiImpl::scope,        HostApiImpl::cfg_bond_members, HostApiImpl::cfg_bonds,
-        HostApiImpl::cfg_item_error,
+        HostApiImpl::cfg_item_error, HostApiImpl::provides,
     };
     return &api;
 }

@@ -25,7 +25,8 @@ public:
     /// Calls fn every period until it returns false or the timer is cancelled.
     virtual uint64_t timer_add(uint64_t period_ns, std::function<bool()> fn) = 0;
     virtual void timer_cancel(uint64_t id) = 0;
-    virtual size_t links(const mavbond_link** out, size_t max) = 0;
+    /// The links in the scope of instance `h`, in id order: fills up to max, returns how many.
+    virtual size_t links(const mavbond_host& h, const mavbond_link** out, size_t max) = 0;
     virtual int bond_by_name(const std::string& name, uint32_t* out) = 0;
     virtual int set_active_link(uint32_t bond_id, uint32_t link_id) = 0;
     virtual int link_counters(uint32_t link_id, mavbond_link_counters* out) = 0;
@@ -66,6 +67,11 @@ public:
     const std::vector<const char*>& bond_names() const { return bond_names_; }
     /// Whether the plugin refused an option through cfg_error (its message names the place).
     bool option_refused() const { return option_refused_; }
+    /// Whether a link of bond `bond` ("" none), of configured endpoint `endpoint`, is in the
+    /// entry's scope: none given, its bond in `bonds:` or its endpoint in `endpoints:`.
+    bool in_scope(const std::string& bond, const std::string& endpoint) const;
+    /// Whether bond `bond` is in scope as a whole: none given, or it is in `bonds:`.
+    bool covers_bond(const std::string& bond) const;
 
 private:
     explicit PluginConfig(const FilterConfig& entry) : entry_(entry) {}
@@ -84,7 +90,9 @@ private:
 /// What a plugin's mavbond_host pointer points at: one per filter instance.
 struct mavbond_host {
     mavbond::HostServices* services;
-    std::string name;  // "dedup", "dedup#2", ... for log prefixes
+    std::string name;          // "dedup", "dedup#2", ... for log prefixes
+    uint32_t index = 0;        // its place in the chain
+    uint32_t provides = 0;     // MAVBOND_PROVIDES_*, as declared in create
 };
 /// What a plugin's mavbond_config pointer points at.
 struct mavbond_config {

@@ -113,10 +113,13 @@ TEST(PluginConfig, NamesOutsideAToZDigitsUnderscoreAreConfigErrors) {
 /// The chain builds from a real config: its errors carry the filter's file:line:column.
 class ChainTest : public ::testing::Test {
 protected:
-    Result<std::unique_ptr<FilterChain>> build(const std::string& filters) {
+    Result<std::unique_ptr<FilterChain>> build(const std::string& filters,
+                                               const std::string& bonds = "") {
         auto cfg = parse_config("endpoints:\n"
-                                "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9}\n"
-                                "filters:\n" + filters, "t.yaml");
+                                "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9" +
+                                    std::string(bonds.empty() ? "" : ", bond: b") + "}\n" + bonds +
+                                    "filters:\n" + filters,
+                                "t.yaml");
         EXPECT_TRUE(cfg.has_value()) << cfg.error().message;
         config_ = std::make_unique<Config>(std::move(cfg.value()));
         router_ = std::make_unique<Router>(*loop_, seconds(10));
@@ -176,6 +179,29 @@ TEST_F(ChainTest, LoadErrorsCarryTheConfigPlace) {
     auto chain = build("  - {plugin: abi_version}\n");
     ASSERT_FALSE(chain.has_value());
     EXPECT_EQ(0u, chain.error().message.find("t.yaml:4:5: filter 'abi_version': " + kDir)) << chain.error().message;
+}
+
+// `renumber: true` needs a filter on the bond that provides the bond's positions of copies
+// numbered each their own way (dedup with key: content declares it); the host checks the
+// declaration, never a plugin's options.
+TEST_F(ChainTest, RenumberingNeedsAFilterThatAlignsTheBondsNumberings) {
+    const std::string bonds = "bonds:\n  - {name: b, renumber: true}\n";
+    const std::string why =
+        "t.yaml:4:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond, "
+        "enabled and scoped to it by 'bonds:' or unscoped (with key: frame the copies already "
+        "share one numbering)";
+    for (const char* filters : {"  - {plugin: good_plugin, bonds: [b]}\n",
+                                "  - {plugin: aligning_plugin, enabled: false}\n",
+                                "  - {plugin: aligning_plugin, endpoints: [a]}\n"}) {
+        auto chain = build(filters, bonds);
+        ASSERT_FALSE(chain.has_value()) << filters;
+        EXPECT_EQ(why, chain.error().message) << filters;
+    }
+    for (const char* filters : {"  - {plugin: aligning_plugin, bonds: [b]}\n",
+                                "  - {plugin: aligning_plugin}\n"}) {
+        auto chain = build(filters, bonds);
+        EXPECT_TRUE(chain.has_value()) << filters << chain.error().message;
+    }
 }
 
 TEST_F(ChainTest, PluginMetricsAreNamedLabelledAndChecked) {

@@ -1,6 +1,7 @@
 // One plugin source, built once per defect (see meson.build), so the loader's every refusal
 // is proven against a real shared object. Without a DEFECT_* macro it is a good plugin that
-// passes every frame and counts them.
+// passes every frame and counts them; with PROVIDES_ALIGNED_POSITIONS it also declares it
+// aligns its bonds' numberings (what `renumber: true` needs).
 #include <cstdio>
 #include <cstring>
 
@@ -16,8 +17,13 @@ struct Counter {
     unsigned long frames = 0;
 };
 
-int create(const mavbond_host_api* api, mavbond_host*, const mavbond_config* cfg, void** out,
+int create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg, void** out,
            char* err, size_t err_len) {
+#ifdef PROVIDES_ALIGNED_POSITIONS
+    api->provides(h, MAVBOND_PROVIDES_ALIGNED_POSITIONS);
+#else
+    (void)h;
+#endif
 #ifdef DEFECT_FAILING_CREATE
     (void)out;
     api->cfg_error(cfg, "label", "this plugin always refuses", err, err_len);
@@ -35,9 +41,8 @@ int create(const mavbond_host_api* api, mavbond_host*, const mavbond_config* cfg
 
 void destroy(void* self) { delete static_cast<Counter*>(self); }
 
-mavbond_verdict on_ingress(void* self, const mavbond_frame*, mavbond_frame_notes*, const mavbond_link*) {
-    static_cast<Counter*>(self)->frames++;
-    return MAVBOND_PASS;
+void on_ingress(void* self, mavbond_received*, size_t count) {
+    static_cast<Counter*>(self)->frames += count;
 }
 
 // Samples that exercise the host's rules: escaping, a NaN gauge, and one it must refuse.

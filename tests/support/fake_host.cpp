@@ -188,10 +188,31 @@ uint64_t FakeHost::timer_add(uint64_t period_ns, std::function<bool()> fn) {
 
 void FakeHost::timer_cancel(uint64_t id) { timers_.erase(id); }
 
-size_t FakeHost::links(const mavbond_link** out, size_t max) {
-    for (size_t i = 0; i < links_.size() && i < max; i++)
-        out[i] = &links_[i]->link;
-    return links_.size();
+bool FakeHost::in_scope(const mavbond_link& link) const {
+    const LinkSlot& slot = *links_.at(link.id);
+    // A learned peer ("radio@10.0.0.2:14550") is in scope as its endpoint is.
+    return plugin_config_->in_scope(slot.bond, slot.name.substr(0, slot.name.find('@')));
+}
+
+mavbond_verdict FakeHost::ingress(const mavbond_frame& f, mavbond_frame_notes& notes,
+                                  const mavbond_link& from) {
+    if (!in_scope(from))
+        return MAVBOND_PASS;
+    mavbond_received r{&f, &notes, &from, MAVBOND_PASS};
+    plugin_->on_ingress(self_, &r, 1);
+    return r.verdict;
+}
+
+size_t FakeHost::links(const mavbond_host&, const mavbond_link** out, size_t max) {
+    size_t n = 0;
+    for (const auto& slot : links_) {
+        if (!in_scope(slot->link))
+            continue;
+        if (n < max)
+            out[n] = &slot->link;
+        n++;
+    }
+    return n;
 }
 
 int FakeHost::bond_by_name(const std::string& name, uint32_t* out) {

@@ -38,6 +38,18 @@ public:
     /// Moves the clock forward by `d`, firing due timers in order.
     void advance(Duration d);
     const mavbond_link& link(const std::string& name) const;
+    /// The name of the link with id `id` ("?" when there is none).
+    std::string link_name(uint32_t id) const {
+        return id < links_.size() ? links_[id]->name : "?";
+    }
+
+    /// Hands one frame to the plugin as the daemon does: a frame of a link out of the
+    /// instance's scope is not shown to it at all (PASS); otherwise it goes as an ingress
+    /// batch of one. `notes` carries the earlier filters' notes in and the plugin's out.
+    mavbond_verdict ingress(const mavbond_frame& f, mavbond_frame_notes& notes,
+                            const mavbond_link& from);
+    /// Whether `link` is in the created instance's scope.
+    bool in_scope(const mavbond_link& link) const;
 
     /// A frame view over `raw` (which must outlive the call it is used in).
     mavbond_frame frame(const std::vector<uint8_t>& raw) const;
@@ -51,7 +63,7 @@ public:
     uint64_t now_ns() override { return now_ns_; }
     uint64_t timer_add(uint64_t period_ns, std::function<bool()> fn) override;
     void timer_cancel(uint64_t id) override;
-    size_t links(const mavbond_link** out, size_t max) override;
+    size_t links(const mavbond_host& h, const mavbond_link** out, size_t max) override;
     int bond_by_name(const std::string& name, uint32_t* out) override;
     int set_active_link(uint32_t bond_id, uint32_t link_id) override;
     int link_counters(uint32_t link_id, mavbond_link_counters* out) override;

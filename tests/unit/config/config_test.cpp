@@ -576,18 +576,6 @@ const BadCase kBadCases[] = {
      "t.yaml:6:14: link_events: must be a map of keys, not a scalar"},
     {"LinkEventsZeroSilence", GCS "link_events:\n  silent_after: 0s\n",
      "t.yaml:7:17: link_events: 'silent_after': duration must be greater than 0"},
-    {"RenumberWithoutDedup",
-     GCS "  - {name: lte, type: udp, mode: server, address: 0.0.0.0:14551, bond: b}\n"
-         "bonds:\n  - {name: b, renumber: true}\n",
-     "t.yaml:8:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond, "
-     "enabled and scoped to it by 'bonds:' or unscoped (with key: frame the copies already share "
-     "one numbering)"},
-    {"RenumberWithDedupKeyFrame",
-     GCS "  - {name: lte, type: udp, mode: server, address: 0.0.0.0:14551, bond: b}\n"
-         "bonds:\n  - {name: b, renumber: true}\nfilters:\n  - {plugin: dedup, bonds: [b]}\n",
-     "t.yaml:8:25: bond 'b': 'renumber' needs a dedup filter with 'key: content' on this bond, "
-     "enabled and scoped to it by 'bonds:' or unscoped (with key: frame the copies already share "
-     "one numbering)"},
     // --- tlog
     {"TlogWithoutDirectory", "endpoints:\n  - {name: log, type: tlog}\n",
      "t.yaml:2:5: endpoint 'log': missing required key 'directory'"},

@@ -1,13 +1,15 @@
-// A bounded JSON text writer for status_json: writes what fits into the caller's buffer and
-// counts the whole length, so the host can retry with a larger buffer (the ABI's contract).
-#pragma once
+// A bounded JSON text writer for a plugin's status_json: writes what fits into the host's
+// buffer and counts the whole length, so the host can retry with a larger buffer (the ABI's
+// contract). FilterPlugin<T> hands one to T::status(JsonOut&).
+#ifndef MAVBOND_JSON_HPP
+#define MAVBOND_JSON_HPP
 
 #include <cstdarg>
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
 
-namespace mavbond_plugins {
+namespace mavbond {
 
 class JsonOut {
 public:
@@ -90,4 +92,6 @@ private:
     size_t pos_ = 0;
 };
 
-}  // namespace mavbond_plugins
+}  // namespace mavbond
+
+#endif  // MAVBOND_JSON_HPP
