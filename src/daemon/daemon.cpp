@@ -278,6 +278,9 @@ bool Daemon::reload() {
     }
 
     link_events_.reset();  // it watches the endpoints about to change
+    // The frames this round read are lent from the endpoints' buffers: routed before any of
+    // them stops.
+    router_.merge_round(true);
     const size_t running = endpoints_.size();
     std::map<std::string, Endpoint::Ptr> kept = stop_changed_endpoints(*next);
     const size_t kept_count = kept.size();

@@ -77,8 +77,8 @@ MetricSet metrics_document(const std::vector<Endpoint::Ptr>& endpoints, const Ro
                 "Frames that had nowhere to go (no other endpoint, or an unknown target).",
                 router.frames_without_destination());
     set.counter("mavbond_router_frames_held_back",
-                "Frames of a bond's link held back for frames that arrived before them on "
-                "another link (after a stall, or when several links are read in one round).",
+                "Frames of a bond's link held back past the round that read them for frames "
+                "that arrived before them on another link (after a stall).",
                 router.frames_held_back());
     const char* active_help = "1 for the active link of a bond (tx: active), 0 for its others.";
     set.declare("mavbond_bond_active_link", active_help, MetricSet::Type::Gauge);

@@ -206,10 +206,10 @@ void UdpServer::on_events(uint32_t events) {
         peer->heard(arrival);
         peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_);
     }
+    // The frames stay lent in datagrams_ until the round ends (its next read is in a later
+    // round): no end_batch() here, the round's end sends what they gave the links.
     if (n > 0)
         frames_.submit();
-    // The frames lent to other links point into datagrams_: sent before it is reused.
-    sink_.end_batch();
 }
 
 // --- UdpClient -----------------------------------------------------------------------------
@@ -283,7 +283,6 @@ void UdpClient::on_events(uint32_t events) {
     }
     if (n > 0)
         frames_.submit();
-    sink_.end_batch();
 }
 
 }  // namespace mavbond

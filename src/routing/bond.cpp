@@ -70,10 +70,11 @@ bool Bond::must_wait(TimePoint t, TimePoint polled, bool all_reported) const {
     return false;
 }
 
-void Bond::wait_aside(const ReceivedFrame& frame, uint64_t order) {
+void Bond::wait(const ReceivedFrame& frame, uint64_t order, bool copy) {
     auto offset = static_cast<uint32_t>(arena.size());
-    arena.insert(arena.end(), frame.frame.bytes.begin(), frame.frame.bytes.end());
-    waiting.push_back(WaitingFrame{frame, order, offset});
+    if (copy)
+        arena.insert(arena.end(), frame.frame.bytes.begin(), frame.frame.bytes.end());
+    waiting.push_back(WaitingFrame{frame, order, offset, copy});
 }
 
 size_t Bond::release(TimePoint polled, bool all_reported, bool all) {
@@ -93,29 +94,46 @@ size_t Bond::release(TimePoint polled, bool all_reported, bool all) {
     return n;
 }
 
-ReceivedFrame& Bond::released(size_t i) {
-    WaitingFrame& w = waiting[i];
-    Frame& f = w.received.frame;
-    const uint8_t* base = arena.data() + w.offset;
+/// Points a frame's spans at `base`, where its bytes are now.
+static void move_frame(Frame& f, const uint8_t* base) {
     auto payload_at = f.payload.data() - f.bytes.data();
     f.payload = {base + payload_at, f.payload.size()};
     f.bytes = {base, f.bytes.size()};
+}
+
+ReceivedFrame& Bond::released(size_t i) {
+    WaitingFrame& w = waiting[i];
+    if (w.owned)
+        move_frame(w.received.frame, arena.data() + w.offset);
     return w.received;
 }
 
-void Bond::drop_released(size_t count) {
+size_t Bond::keep_unreleased(size_t count) {
     waiting.erase(waiting.begin(), waiting.begin() + static_cast<ptrdiff_t>(count));
     if (waiting.empty()) {
         arena.clear();
-        return;
+        return 0;
     }
-    // The rest waits for the next round; its bytes move to the front of the arena.
-    size_t keep_from = waiting.front().offset;  // not sorted by offset: find the lowest
-    for (const WaitingFrame& w : waiting)
-        keep_from = std::min<size_t>(keep_from, w.offset);
+    // What stays moves to the arena's front; what was lent is copied in after it.
+    size_t keep_from = arena.size();  // not sorted by offset: find the lowest
+    for (const WaitingFrame& w : waiting) {
+        if (w.owned)
+            keep_from = std::min<size_t>(keep_from, w.offset);
+    }
     arena.erase(arena.begin(), arena.begin() + static_cast<ptrdiff_t>(keep_from));
-    for (WaitingFrame& w : waiting)
-        w.offset -= static_cast<uint32_t>(keep_from);
+    size_t lent = 0;
+    for (WaitingFrame& w : waiting) {
+        if (w.owned) {
+            w.offset -= static_cast<uint32_t>(keep_from);
+            continue;
+        }
+        const Frame& f = w.received.frame;
+        w.offset = static_cast<uint32_t>(arena.size());
+        arena.insert(arena.end(), f.bytes.begin(), f.bytes.end());
+        w.owned = true;
+        lent++;
+    }
+    return lent;
 }
 
 }  // namespace mavbond

@@ -68,11 +68,14 @@ public:
 
     // --- arrival order (the router's merge, see router.h) -----------------------------------
 
-    /// A frame of a member link copied aside: its bytes at `offset` in the arena.
+    /// A frame of a member waiting for the merge: lent (its bytes still in the receive buffer
+    /// of a datagram socket, which is not reused before the round ends) or copied aside (its
+    /// bytes at `offset` in the arena).
     struct WaitingFrame {
-        ReceivedFrame received;  // spans rebuilt from the arena when it is released
+        ReceivedFrame received;  // owned: spans rebuilt from the arena when it is released
         uint64_t order;          // ties (the frames of one datagram) keep the order they came in
         uint32_t offset;
+        bool owned;
     };
     /// The sockets that feed the members.
     std::vector<Input*> inputs;
@@ -81,15 +84,17 @@ public:
     TimePoint held_until = TimePoint::max();  // frames after it wait for the next round
     /// Whether a frame that arrived at `t` must wait for others that may have come before it.
     bool must_wait(TimePoint t, TimePoint polled, bool all_reported) const;
-    /// Copies a frame aside (its bytes into the arena).
-    void wait_aside(const ReceivedFrame& frame, uint64_t order);
+    /// Keeps a frame for the merge: lent, or with its bytes copied into the arena (`copy`).
+    void wait(const ReceivedFrame& frame, uint64_t order, bool copy);
     /// Sorts what waits in arrival order and says how many may go: those that arrived no
     /// later than every input is read to (`all`: every one).
     size_t release(TimePoint polled, bool all_reported, bool all);
-    /// The frame at `i` of the released ones, its spans pointing into the arena.
+    /// The frame at `i` of the released ones, its spans pointing where its bytes are.
     ReceivedFrame& released(size_t i);
-    /// Forgets the first `count` frames (routed) and moves the rest to the arena's front.
-    void drop_released(size_t count);
+    /// Forgets the first `count` frames (routed); the rest wait for the next round, their
+    /// bytes all in the arena now (a lent frame's buffer is reused then). Returns how many
+    /// were lent until now.
+    size_t keep_unreleased(size_t count);
 
 private:
     std::string name_;

@@ -64,7 +64,9 @@ struct ReceivedFrame {
 class FrameSink;
 
 /// The frames of one read in arrival order, from one input (or none: a byte stream), on
-/// their way to a sink. Their bytes are lent: valid until the sink's end_batch().
+/// their way to a sink. Their bytes are lent: an input's until the loop's round ends (a
+/// datagram socket is read once a round, into a buffer of its own), a byte stream's until
+/// the endpoint calls the sink's end_batch().
 class ReceivedBatch {
 public:
     static constexpr size_t kCapacity = 64;
@@ -100,8 +102,9 @@ public:
     /// Takes the frames of a read (ReceivedBatch::submit). Frames of a bond's links may be
     /// kept aside until the frames that arrived before them are in.
     virtual void ingress(ReceivedBatch& batch) = 0;
-    /// Sends what the batches since the last call gave the links: an endpoint calls it before
-    /// it reuses the buffers its frames point into.
+    /// Sends what the batches since the last call gave the links, and afterwards no frame a
+    /// byte-stream endpoint handed over is lent any more: it calls this before it reuses the
+    /// buffer its frames point into. (The loop calls it at every round's end too.)
     virtual void end_batch() = 0;
 };
 

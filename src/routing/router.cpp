@@ -35,6 +35,7 @@ void Router::detach(Link& link) {
         Bond& bond = bonds_[s.bond];
         bond.forget_link(id);
         // Its frames still waiting go with it (a link gone within a round of a stall).
+        // Lent frames of a socket that goes are no longer valid, copied ones no longer wanted.
         auto& waiting = bond.waiting;
         size_t before = waiting.size();
         waiting.erase(std::remove_if(waiting.begin(), waiting.end(),
@@ -61,9 +62,10 @@ void Router::detach(Input& input) {
 }
 
 void Router::ingress(ReceivedBatch& batch) {
+    Input* input = batch.input();
     // A socket epoll reported readable held its first datagram when epoll looked.
-    if (Input* in = batch.input())
-        polled_no_earlier_than(in->first_reported());
+    if (input)
+        polled_no_earlier_than(input->first_reported());
     ready_.clear();
     for (size_t i = 0; i < batch.size(); i++) {
         ReceivedFrame& r = batch[i];
@@ -73,9 +75,15 @@ void Router::ingress(ReceivedBatch& batch) {
             continue;
         }
         Bond& bond = bonds_[from.bond];
-        bond.heard(from.member, r.arrival);
-        if (bond.must_wait(r.arrival, polled(), loop_.all_reported())) {
-            bond.wait_aside(r, wait_order_++);
+        if (from.member != Bond::kNoMember)
+            bond.heard(from.member, r.arrival);
+        if (input && !bond.inputs.empty()) {
+            // A datagram socket's buffer lasts the round: its bond's frames wait there, lent,
+            // for the merge of everything the round read.
+            bond.wait(r, wait_order_++, false);
+        } else if (bond.must_wait(r.arrival, polled(), loop_.all_reported())) {
+            // A byte stream reuses its buffer at its next read: the frame is copied aside.
+            bond.wait(r, wait_order_++, true);
             frames_held_back_++;
         } else {
             ready_.push_back(&r);
@@ -202,30 +210,33 @@ void Router::polled_no_earlier_than(TimePoint t) {
 }
 
 void Router::merge_round(bool all) {
+    // Each bond's frames of the round in arrival order, as far as every socket of the bond is
+    // read: filtered and routed as one batch.
+    std::vector<size_t>& released = released_;
+    released.assign(bonds_.size(), 0);
     bool any = false;
-    for (Bond& bond : bonds_) {
+    for (size_t b = 0; b < bonds_.size(); b++) {
+        Bond& bond = bonds_[b];
         if (bond.waiting.empty())
             continue;
         any = true;
-        size_t n = bond.release(polled(), loop_.all_reported(), all);
+        released[b] = bond.release(polled(), loop_.all_reported(), all);
         ready_.clear();
-        for (size_t i = 0; i < n; i++)
+        for (size_t i = 0; i < released[b]; i++)
             ready_.push_back(&bond.released(i));
         handle(ready_.data(), ready_.size());
     }
     if (!any)
         return;
-    // The frames just routed are lent from the arenas: sent before the arenas change.
+    // The frames just routed are lent to the links' queues: sent before their bytes move.
     end_batch();
     bool held = false;
-    for (Bond& bond : bonds_) {
+    for (size_t b = 0; b < bonds_.size(); b++) {
+        Bond& bond = bonds_[b];
         if (bond.waiting.empty())
             continue;
-        size_t released = 0;
-        while (released < bond.waiting.size() &&
-               bond.waiting[released].received.arrival <= bond.held_until)
-            released++;
-        bond.drop_released(released);
+        // What waits past this round needed a copy: it is held back for arrival order.
+        frames_held_back_ += bond.keep_unreleased(released[b]);
         held = held || !bond.waiting.empty();
     }
     if (held)

@@ -12,13 +12,15 @@
 // Arrival order: the frames of a bond's links reach the filters in the order they arrived,
 // however late the loop gets to them. A stalled daemon finds a backlog on every link at once;
 // handed on link by link, the frames one link lost would come after newer ones another link
-// carried (and be dropped as stale, or numbered out of order). So a frame from a bond's link
-// is handled at once only when every socket of the bond is known to be read up to its arrival
-// (a socket epoll did not report had nothing when epoll looked; one it reported is read to
-// where its read got: the last datagram of a full batch, or the time of a read that emptied
-// it); otherwise it is copied aside, and after the round's reads the copies are handled in
-// arrival order, up to the time every socket of the bond is read to. The rest waits for the
-// next round, which then comes at once.
+// carried (and be dropped as stale, or numbered out of order). So the frames a round reads
+// from a bond's sockets wait, lent in the sockets' buffers (which last the round), until the
+// round's reads are done; then they are merged in arrival order and go through the filters
+// as one batch, up to the time every socket of the bond is known to be read to (a socket
+// epoll did not report had nothing when epoll looked; one it reported is read to where its
+// read got: the last datagram of a full batch, or the time of a read that emptied it). The
+// rest is copied aside (held back) and waits for the next round, which then comes at once.
+// A byte-stream link of such a bond (a UART) reuses its buffer at every read: its frame goes
+// at once when nothing may have come before it, else it is copied aside to wait.
 #pragma once
 
 #include <cstdint>
@@ -108,7 +110,8 @@ public:
 
     uint64_t frames_routed() const { return frames_routed_; }
     uint64_t frames_without_destination() const { return frames_without_destination_; }
-    /// Frames that waited for frames that arrived before them on another link of their bond.
+    /// Frames that waited past the round that read them (copied aside) for frames that
+    /// arrived before them on another link of their bond.
     uint64_t frames_held_back() const { return frames_held_back_; }
 
 private:
@@ -167,6 +170,7 @@ private:
     FrameFilter* filter_ = nullptr;
     std::vector<ReceivedFrame*> ready_;  // the frames handle() is given, reused
     std::vector<FrameFilter::Ingress> verdicts_;
+    std::vector<size_t> released_;       // per bond: how many frames merge_round() released
     uint64_t wait_order_ = 0;
     TimePoint polled_ = {};              // polled()'s bound for round polled_round_
     uint64_t polled_round_ = 0;
