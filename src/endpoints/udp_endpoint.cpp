@@ -142,9 +142,12 @@ void UdpServer::finish(TimePoint deadline) {
 }
 
 UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
+    // Datagrams come in runs from one peer: the last one found is tried first.
+    if (last_peer_ && same_address(last_peer_->address(), addr))
+        return last_peer_;
     for (auto& peer : peers_) {
         if (same_address(peer->address(), addr))
-            return peer.get();
+            return last_peer_ = peer.get();
     }
     if (peers_.size() >= kMaxPeers) {
         if (refused_peers_++ == 0)
@@ -153,6 +156,7 @@ UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
         return nullptr;
     }
     peers_.push_back(std::make_unique<UdpPeer>(*this, addr, now));
+    last_peer_ = peers_.back().get();
     sink_.attach(*peers_.back());
     log_info("[udp:%s] new peer %s", name().c_str(), to_string(addr).c_str());
     return peers_.back().get();
@@ -168,6 +172,8 @@ void UdpServer::forget_silent_peers() {
                  std::chrono::duration<double>(now - peer->last_heard()).count());
         sink_.detach(*peer);
         retired_ += peer->counters();
+        if (last_peer_ == peer.get())
+            last_peer_ = nullptr;
         return true;
     };
     peers_.erase(std::remove_if(peers_.begin(), peers_.end(), silent), peers_.end());

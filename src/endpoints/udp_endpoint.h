@@ -106,6 +106,7 @@ private:
     DatagramBatch datagrams_;
     ReceivedBatch frames_{sink_, &input_};
     std::vector<std::unique_ptr<UdpPeer>> peers_;
+    UdpPeer* last_peer_ = nullptr;  // the peer the last datagram came from
     LinkCounters retired_;      // counters of forgotten peers, so totals never go back
     uint64_t refused_peers_ = 0;
 };

@@ -37,7 +37,8 @@ public:
     /// When a frame last came in on member `member` (epoch: never).
     TimePoint last_heard(uint32_t member) const { return last_heard_[member]; }
     void heard(uint32_t member, TimePoint arrival) {
-        last_heard_[member] = std::max(last_heard_[member], arrival);
+        if (member < last_heard_.size())
+            last_heard_[member] = std::max(last_heard_[member], arrival);
     }
 
     /// The link `tx: active` sends on (kNoLink: none chosen yet, every member sends).

@@ -82,6 +82,8 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
                 return make_error(std::string(err) + " (" + plugin->path() + ": create failed)");
             return make_error(at + plugin->path() + ": create failed: " + (err[0] ? err : "no reason given"));
         }
+        if (d.on_egress)
+            chain->egress_hooks_ |= uint64_t{1} << chain->instances_.size();
         chain->instances_.push_back(std::move(inst));
     }
     if (auto r = chain->check_bonds(config); !r)
@@ -123,9 +125,9 @@ FilterChain::~FilterChain() {
 
 void FilterChain::on_link(const Link& link, bool added) {
     uint32_t id = link.id();
-    if (id >= links_.size())
-        links_.resize(id + 1);
-    LinkView& v = links_[id];
+    while (id >= links_.size())
+        links_.push_back(std::make_unique<LinkView>());
+    LinkView& v = view(id);
     if (added) {
         v.source = &link;
         v.name = link.name();
@@ -154,8 +156,9 @@ void FilterChain::on_link(const Link& link, bool added) {
     }
 }
 
-mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
-    mavbond_frame f{};
+void FilterChain::fill_c_frame(mavbond_frame& f, const Frame& frame, TimePoint rx_time) {
+    // Every field written once, in place (a frame's view is made per frame).
+    const MessageInfo* info = frame.info;
     f.struct_size = sizeof f;
     f.version = frame.version;
     f.incompat_flags = frame.incompat_flags;
@@ -170,72 +173,77 @@ mavbond_frame FilterChain::to_c_frame(const Frame& frame, TimePoint rx_time) {
     f.raw_len = static_cast<uint32_t>(frame.bytes.size());
     f.payload = frame.payload.data();
     f.payload_len = static_cast<uint32_t>(frame.payload.size());
-    f.timestamp_offset = frame.info ? frame.info->timestamp_ofs : -1;
-    f.timestamp_size = frame.info ? frame.info->timestamp_size : 0;
-    f.timestamp_us = frame.info ? frame.info->timestamp_us : 0;
+    f.timestamp_offset = info ? info->timestamp_ofs : -1;
+    f.timestamp_size = info ? info->timestamp_size : 0;
+    f.timestamp_us = info ? info->timestamp_us : 0;
     f.rx_time_ns = to_ns(rx_time);
-    return f;
+    f.stream_pos = 0;
+    f.stream_lost = 0;
+    f.stream_flags = 0;
 }
 
 void FilterChain::on_ingress(ReceivedFrame* const* frames, size_t count, Ingress* out) {
-    // The batch as plugins see it: the frames in any filter's scope, each with its stream
+    for (size_t done = 0; done < count; done += kChunk)
+        filter_chunk(frames + done, std::min(kChunk, count - done), out + done);
+}
+
+void FilterChain::filter_chunk(ReceivedFrame* const* frames, size_t count, Ingress* out) {
+    // The chunk as plugins see it: the frames in any filter's scope, each with its stream
     // position (tracked once, here, for the frames shown) and its notes.
-    if (c_frames_.size() < count) {
-        c_frames_.resize(count);
-        notes_.resize(count);
-    }
-    received_.clear();
-    shown_from_.clear();
+    size_t shown = 0;
     uint64_t any_scope = 0, all_scope = ~uint64_t{0};
     for (size_t k = 0; k < count; k++) {
         const ReceivedFrame& r = *frames[k];
-        LinkView& v = links_[r.from->id()];
+        LinkView& v = view(r.from->id());
         if (v.scope_mask == 0 || !r.routed)
             continue;
         any_scope |= v.scope_mask;
         all_scope &= v.scope_mask;
-        mavbond_frame& f = c_frames_[received_.size()];
-        f = to_c_frame(r.frame, r.arrival);
+        mavbond_frame& f = c_frames_[shown];
+        fill_c_frame(f, r.frame, r.arrival);
         StreamStep step = v.positions.track(r.frame.sysid, r.frame.compid, r.frame.seq);
         f.stream_pos = step.pos;
         f.stream_lost = step.lost;
         f.stream_flags = step.flags;
-        mavbond_frame_notes& notes = notes_[received_.size()];
+        mavbond_frame_notes& notes = notes_[shown];
         notes = mavbond_frame_notes{};
         notes.struct_size = sizeof notes;
-        received_.push_back(mavbond_received{&f, &notes, &v.link, MAVBOND_PASS});
-        shown_from_.push_back(static_cast<uint32_t>(k));
+        received_[shown] = mavbond_received{&f, &notes, &v.link, MAVBOND_PASS};
+        shown_from_[shown] = static_cast<uint32_t>(k);
+        shown++;
     }
-    for (size_t i = 0; i < instances_.size() && !received_.empty(); i++) {
+    for (size_t i = 0; i < instances_.size() && shown > 0; i++) {
         const uint64_t bit = uint64_t{1} << i;
         Instance& inst = *instances_[i];
         auto hook = inst.plugin->descriptor().on_ingress;
         if (!hook || !(any_scope & bit))
             continue;
-        // Usually every frame is in scope (a round of one bond's links) and the batch goes as
+        // Usually every frame is in scope (a round of one bond's links) and the chunk goes as
         // it is; otherwise the frames in scope, in order (their notes are shared).
-        std::vector<mavbond_received>* batch = &received_;
+        mavbond_received* batch = received_.data();
+        size_t n = shown;
         if (!(all_scope & bit)) {
-            subset_.clear();
-            for (const mavbond_received& r : received_) {
-                if (links_[r.from->id].scope_mask & bit)
-                    subset_.push_back(r);
+            batch = subset_.data();
+            n = 0;
+            for (size_t j = 0; j < shown; j++) {
+                if (view(received_[j].from->id).scope_mask & bit)
+                    subset_[n++] = received_[j];
             }
-            batch = &subset_;
         }
-        for (mavbond_received& r : *batch)
-            r.verdict = MAVBOND_PASS;
-        hook(inst.self, batch->data(), batch->size());
+        for (size_t j = 0; j < n; j++)
+            batch[j].verdict = MAVBOND_PASS;
+        hook(inst.self, batch, n);
         // After one filter drops a frame, the rest still see it, flagged; only the first drop
         // counts (see the header).
-        for (const mavbond_received& r : *batch) {
-            if (r.verdict == MAVBOND_DROP && !(r.notes->flags & MAVBOND_NOTE_DROPPED)) {
+        for (size_t j = 0; j < n; j++) {
+            uint32_t& flags = batch[j].notes->flags;
+            if (batch[j].verdict == MAVBOND_DROP && !(flags & MAVBOND_NOTE_DROPPED)) {
                 inst.dropped++;
-                r.notes->flags |= MAVBOND_NOTE_DROPPED;
+                flags |= MAVBOND_NOTE_DROPPED;
             }
         }
     }
-    for (size_t j = 0; j < received_.size(); j++) {
+    for (size_t j = 0; j < shown; j++) {
         const mavbond_frame_notes& notes = notes_[j];
         Ingress& o = out[shown_from_[j]];
         o.pass = !(notes.flags & MAVBOND_NOTE_DROPPED);
@@ -245,10 +253,10 @@ void FilterChain::on_ingress(ReceivedFrame* const* frames, size_t count, Ingress
 }
 
 bool FilterChain::on_egress(const Frame& frame, const Link& to) {
-    const LinkView& v = links_[to.id()];
-    if (v.scope_mask == 0)
+    const LinkView& v = view(to.id());
+    if ((v.scope_mask & egress_hooks_) == 0)
         return true;
-    mavbond_frame f{};
+    mavbond_frame f;
     bool built = false;
     for (size_t i = 0; i < instances_.size(); i++) {
         Instance& inst = *instances_[i];
@@ -256,7 +264,7 @@ bool FilterChain::on_egress(const Frame& frame, const Link& to) {
         if (!hook || !(v.scope_mask >> i & 1))
             continue;
         if (!built) {
-            f = to_c_frame(frame, loop_.now());
+            fill_c_frame(f, frame, loop_.now());
             built = true;
         }
         if (hook(inst.self, &f, &v.link) == MAVBOND_DROP) {
@@ -392,11 +400,11 @@ void FilterChain::timer_cancel(uint64_t id) {
 size_t FilterChain::links(const mavbond_host& h, const mavbond_link** out, size_t max) {
     const uint64_t bit = uint64_t{1} << h.index;
     size_t n = 0;
-    for (const LinkView& v : links_) {
-        if (!v.source || !(v.scope_mask & bit))
+    for (const auto& v : links_) {
+        if (!v->source || !(v->scope_mask & bit))
             continue;
         if (n < max)
-            out[n] = &v.link;
+            out[n] = &v->link;
         n++;
     }
     return n;
@@ -415,9 +423,9 @@ int FilterChain::set_active_link(uint32_t bond_id, uint32_t link_id) {
 }
 
 int FilterChain::link_counters(uint32_t link_id, mavbond_link_counters* out) {
-    if (link_id >= links_.size() || !links_[link_id].source)
+    if (link_id >= links_.size() || !view(link_id).source)
         return -ENOENT;
-    const LinkCounters& s = links_[link_id].source->counters();
+    const LinkCounters& s = view(link_id).source->counters();
     *out = mavbond_link_counters{sizeof(mavbond_link_counters), s.rx.frames, s.rx.bytes,
                                  s.rx.crc_errors, s.rx.garbage_bytes, s.rx.unknown_ids,
                                  s.tx_frames, s.tx_bytes, s.tx_dropped};

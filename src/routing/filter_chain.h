@@ -4,7 +4,7 @@
 // never learns from a frame another filter dropped. Egress: the first drop stops the frame.
 #pragma once
 
-#include <deque>
+#include <array>
 #include <map>
 #include <memory>
 #include <string>
@@ -51,7 +51,7 @@ private:
         StreamPositions positions;  // of the sources heard on this link
     };
     FilterChain(EventLoop& loop, Router& router);
-    static mavbond_frame to_c_frame(const Frame& frame, TimePoint rx_time);
+    static void fill_c_frame(mavbond_frame& f, const Frame& frame, TimePoint rx_time);
     /// Every bond that renumbers needs an instance that provides aligned positions on it.
     Result<void> check_bonds(const Config& config) const;
 
@@ -70,17 +70,24 @@ private:
     std::vector<FilterConfig> entries_;  // the chain's own copy: a reload may replace the Config
     std::vector<std::unique_ptr<LoadedPlugin>> plugins_;  // destroyed after the instances
     std::vector<std::unique_ptr<Instance>> instances_;
-    std::deque<LinkView> links_;  // index = endpoint id; a deque keeps the views where they are
+    uint64_t egress_hooks_ = 0;  // bit i: instance i has an egress hook
+    // Index = link id. Each view stays where it is (plugins hold its mavbond_link) while the
+    // table grows.
+    std::vector<std::unique_ptr<LinkView>> links_;
+    LinkView& view(LinkId id) { return *links_[id]; }
     std::map<uint64_t, EventLoop::Timer> timers_;
     uint64_t next_timer_ = 1;
     std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the chain
     void defer_erase(uint64_t timer_id);
-    // One ingress batch as the instances get it, reused (sized to the largest batch seen).
-    std::vector<mavbond_frame> c_frames_;
-    std::vector<mavbond_frame_notes> notes_;
-    std::vector<mavbond_received> received_;
-    std::vector<uint32_t> shown_from_;       // received_[j] is frame shown_from_[j] of the batch
-    std::vector<mavbond_received> subset_;   // the frames in one instance's scope
+    /// Filters up to kChunk frames of a batch.
+    void filter_chunk(ReceivedFrame* const* frames, size_t count, Ingress* out);
+    // One chunk of an ingress batch as the instances get it.
+    static constexpr size_t kChunk = 64;
+    std::array<mavbond_frame, kChunk> c_frames_;
+    std::array<mavbond_frame_notes, kChunk> notes_;
+    std::array<mavbond_received, kChunk> received_;
+    std::array<uint32_t, kChunk> shown_from_;      // received_[j] is frame shown_from_[j]
+    std::array<mavbond_received, kChunk> subset_;  // the frames in one instance's scope
 };
 
 }  // namespace mavbond

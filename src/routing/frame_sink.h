@@ -46,10 +46,12 @@ public:
     }
 
 private:
+    friend class Router;  // places it in its bond
     std::string bond_;
     const EventLoop::Watch& watch_;
     TimePoint last_{};
     TimePoint first_{};
+    uint32_t bond_index_ = UINT32_MAX;  // the router's index of bond_ (UINT32_MAX: none)
 };
 
 /// One frame as an endpoint hands it over.

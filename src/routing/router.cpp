@@ -63,9 +63,21 @@ void Router::detach(Input& input) {
 
 void Router::ingress(ReceivedBatch& batch) {
     Input* input = batch.input();
-    // A socket epoll reported readable held its first datagram when epoll looked.
-    if (input)
+    if (input) {
+        // A socket epoll reported readable held its first datagram when epoll looked.
         polled_no_earlier_than(input->first_reported());
+        if (input->bond_index_ != kNoBond) {
+            // A datagram socket's buffer lasts the round: its bond's frames wait there, lent,
+            // for the merge of everything the round read (its links are the bond's).
+            Bond& bond = bonds_[input->bond_index_];
+            for (size_t i = 0; i < batch.size(); i++) {
+                const ReceivedFrame& r = batch[i];
+                bond.heard(slot(*r.from).member, r.arrival);
+                bond.wait(r, wait_order_++, false);
+            }
+            return;
+        }
+    }
     ready_.clear();
     for (size_t i = 0; i < batch.size(); i++) {
         ReceivedFrame& r = batch[i];
@@ -75,13 +87,8 @@ void Router::ingress(ReceivedBatch& batch) {
             continue;
         }
         Bond& bond = bonds_[from.bond];
-        if (from.member != Bond::kNoMember)
-            bond.heard(from.member, r.arrival);
-        if (input && !bond.inputs.empty()) {
-            // A datagram socket's buffer lasts the round: its bond's frames wait there, lent,
-            // for the merge of everything the round read.
-            bond.wait(r, wait_order_++, false);
-        } else if (bond.must_wait(r.arrival, polled(), loop_.all_reported())) {
+        bond.heard(from.member, r.arrival);
+        if (bond.must_wait(r.arrival, polled(), loop_.all_reported())) {
             // A byte stream reuses its buffer at its next read: the frame is copied aside.
             bond.wait(r, wait_order_++, true);
             frames_held_back_++;
@@ -124,9 +131,9 @@ void Router::place_links() {
     for (Bond& b : bonds_)
         b.inputs.clear();
     for (Input* in : inputs_) {
-        uint32_t bond = bond_index(in->bond());
-        if (bond != kNoBond)
-            bonds_[bond].inputs.push_back(in);
+        in->bond_index_ = bond_index(in->bond());
+        if (in->bond_index_ != kNoBond)
+            bonds_[in->bond_index_].inputs.push_back(in);
     }
 }
 

@@ -323,7 +323,7 @@ class Bench:
     def callgrind(self, frames: int, links: int, tag: str) -> dict:
         pa, pb, po = free_ports(3)
         out = self.tmp / f"callgrind.{tag}.out"
-        wrap = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}"]
+        wrap = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}"] + os.environ.get("MAVBOND_BENCH_VALGRIND_ARGS", "").split()
         proc, errf = self.start("mavbond", pa, pb, po, wrap)
         try:
             cmd = [str(self.load), "--templates", str(self.templates),
