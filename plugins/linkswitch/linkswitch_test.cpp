@@ -15,8 +15,8 @@
 
 #include "allocations.h"
 #include "fake_host.h"
-#include "routing/stream_positions.h"
 #include "mavbond/plugin.h"
+#include "routing/stream_positions.h"
 
 extern "C" const mavbond_plugin_descriptor* mavbond_plugin_entry(void);
 

@@ -88,6 +88,11 @@ Result<MetricSet::Family*> MetricSet::family(std::string_view name, std::string_
     return &f;
 }
 
+Result<void> MetricSet::add(const MetricSample& s) {
+    return s.type == Type::Counter ? counter(s.name, s.help, s.count, s.labels)
+                                   : gauge(s.name, s.help, s.value, s.labels);
+}
+
 Result<void> MetricSet::declare(std::string_view name, std::string_view help, Type type) {
     auto f = family(name, help, type);
     if (!f)

@@ -17,6 +17,7 @@
 namespace mavbond {
 
 using MetricLabels = std::vector<std::pair<std::string, std::string>>;
+struct MetricSample;
 
 class MetricSet {
 public:
@@ -29,6 +30,8 @@ public:
                        const MetricLabels& labels = {});
     /// Declares a family that may have no sample yet (its HELP and TYPE are written anyway).
     Result<void> declare(std::string_view name, std::string_view help, Type type);
+    /// A sample kept as a value (see MetricSample).
+    Result<void> add(const MetricSample& sample);
 
     std::string text() const;
 
@@ -46,6 +49,16 @@ private:
 
     std::vector<Family> families_;  // first-added first
     std::unordered_map<std::string, size_t> index_;
+};
+
+/// One sample as a value, for a status taken now and rendered later.
+struct MetricSample {
+    MetricSet::Type type = MetricSet::Type::Counter;
+    std::string name;  // the family, without _total
+    std::string help;
+    MetricLabels labels;
+    uint64_t count = 0;  // a counter's
+    double value = 0;    // a gauge's
 };
 
 /// [a-zA-Z_:][a-zA-Z0-9_:]*

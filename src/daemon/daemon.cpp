@@ -5,7 +5,6 @@
 #include <cstring>
 
 #include "core/log.h"
-#include "daemon/metrics.h"
 #include "mavbond_build_config.h"
 
 namespace mavbond {
@@ -15,16 +14,6 @@ namespace {
 // exit, and (shorter: the loop keeps routing) when a reload removes or changes it.
 constexpr Duration kExitFinishBound = milliseconds(500);
 constexpr Duration kReloadFinishBound = milliseconds(50);
-
-/// "WHAT endpoint=NAME kind=KIND counter=value..." (WHAT: "stats" for the periodic and exit
-/// lines, which tools parse).
-std::string counters_line(const Endpoint& e, const char* what = "stats") {
-    std::string line = std::string(what) + " endpoint=" + e.name() + " kind=" + e.kind();
-    for_each_counter(e.total_counters(), [&line](const char* name, uint64_t value) {
-        line += std::string(" ") + name + "=" + std::to_string(value);
-    });
-    return line;
-}
 
 /// Each bonded endpoint's (name, bond), in config order: the filters number a bond's links
 /// by this order, so a change in it restarts them.
@@ -70,37 +59,6 @@ const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
 }
 
 }  // namespace
-
-void ProblemReport::run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval) {
-    double secs = std::chrono::duration<double>(interval).count();
-    for (const auto& e : endpoints) {
-        LinkCounters now = e->total_counters();
-        LinkCounters& was = last_[e.get()];
-        std::string what;
-        auto add = [&what](uint64_t delta, const char* label) {
-            if (delta == 0)
-                return;
-            if (!what.empty())
-                what += ", ";
-            what += std::to_string(delta) + " " + label;
-        };
-        add(now.rx.crc_errors - was.rx.crc_errors, "CRC errors");
-        add(now.rx.garbage_bytes - was.rx.garbage_bytes, "garbage bytes");
-        add(now.rx.unknown_ids - was.rx.unknown_ids, "unknown message ids");
-        add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
-        add(now.rx_overflows - was.rx_overflows,
-            "datagrams dropped by the kernel (receive buffer full: raise rx_buffer)");
-        add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
-        add(now.tx_errors - was.tx_errors, "write errors");
-        add(now.sig_unsigned - was.sig_unsigned,
-            e->config().signing.require ? "unsigned frames dropped" : "unsigned frames let through");
-        add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
-        add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
-        if (!what.empty())
-            log_notice("[%s] %s in the last %.0fs", e->name().c_str(), what.c_str(), secs);
-        was = now;
-    }
-}
 
 Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
     : opts_(opts), loop_(loop), config_(std::move(config)),
@@ -183,7 +141,7 @@ std::optional<Daemon::StartError> Daemon::start() {
     open_metrics();
     // The timers read the current config each time, so a reload changes their periods.
     report_timer_ = loop_.schedule(config_->report_interval, [this] {
-        report_.run(endpoints_, config_->report_interval);
+        report_.run(status(), config_->report_interval);
         return config_->report_interval;
     });
     route_timer_ = loop_.schedule(seconds(1), [this] {
@@ -223,7 +181,7 @@ void Daemon::open_status_socket() {
     if (config_->status_socket.empty())
         return;
     auto st = StatusSocket::open(config_->status_socket, loop_,
-                                 [this] { return status_document(); });
+                                 [this] { return status_json(status()); });
     // Telemetry matters more than the status: without its socket the daemon still routes.
     if (st)
         status_ = std::move(st.value());
@@ -237,10 +195,7 @@ void Daemon::open_metrics() {
         return;
     const MetricsConfig& mc = config_->metrics;
     auto m = MetricsHttpServer::open(mc.host, mc.port, {8192, mc.max_connections, mc.timeout},
-                                     loop_, [this] {
-                                         return metrics_document(endpoints_, router_, *chain_,
-                                                                 started_, loop_.now());
-                                     });
+                                     loop_, [this] { return status_metrics(status()); });
     // As with the status socket: without its metrics the daemon still routes.
     if (m)
         metrics_ = std::move(m.value());
@@ -249,8 +204,8 @@ void Daemon::open_metrics() {
 }
 
 void Daemon::dump_counters() const {
-    for (const auto& e : endpoints_)
-        log_notice("%s", counters_line(*e).c_str());
+    for (const Status::Endpoint& e : status().endpoints)
+        log_notice("%s", counters_line(e).c_str());
 }
 
 bool Daemon::reload() {
@@ -329,8 +284,8 @@ std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config
             continue;
         }
         e->finish(finish_by);
-        log_notice("reload: %s", counters_line(*e, "stopped").c_str());
-        report_.forget(*e);
+        log_notice("reload: %s", counters_line(endpoint_status(*e), "stopped").c_str());
+        report_.forget(e->name());
         e.reset();  // closes its sockets before a replacement binds the same address
     }
     endpoints_.clear();
@@ -371,44 +326,33 @@ void Daemon::apply_settings(std::unique_ptr<Config> next) {
         open_metrics();
 }
 
-std::string Daemon::status_document() const {
-    TimePoint now = loop_.now();
-    std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
-                      std::to_string(std::chrono::duration_cast<seconds>(now - started_).count()) +
-                      ",\"status_refused\":" + std::to_string(status_ ? status_->refused() : 0) +
-                      ",\"endpoints\":[";
-    for (size_t i = 0; i < endpoints_.size(); i++) {
-        const Endpoint& e = *endpoints_[i];
-        out += std::string(i ? "," : "") + "{\"name\":\"" + e.name() + "\",\"kind\":\"" + e.kind() +
-               "\",\"bond\":\"" + e.config().bond + "\"";
-        LinkCounters st = e.total_counters();
-        for_each_counter(st, [&out](const char* name, uint64_t value) {
-            out += std::string(",\"") + name + "\":" + std::to_string(value);
-        });
-        // Milliseconds since a frame last came in; -1: never.
-        auto ago = std::chrono::duration_cast<milliseconds>(now - st.last_rx).count();
-        out += ",\"last_rx_ms_ago\":" +
-               std::to_string(st.last_rx == TimePoint{} ? -1 : static_cast<long long>(ago)) + "}";
-    }
-    out += "],\"bonds\":[";
-    for (size_t i = 0; i < router_.bonds().size(); i++) {
-        const Bond& b = router_.bonds()[i];
-        const Link* active = router_.link(b.active_link());
-        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name() + "\",\"tx\":\"" +
-               (b.tx_active() ? "active" : "broadcast") + "\",\"active\":\"" +
-               (active ? active->name() : "") +
-               "\",\"switches\":" + std::to_string(b.switches());
-        const auto renumbered = b.renumber_counters();
-        if (!renumbered.empty()) {
-            out += ",\"renumber\":{";
-            for (const auto& [name, value] : renumbered)
-                out += std::string(out.back() == '{' ? "\"" : ",\"") + name + "\":" +
-                       std::to_string(value);
-            out += "}";
+Status Daemon::status() const {
+    Status s;
+    s.taken = loop_.now();
+    s.uptime = s.taken - started_;
+    s.status_refused = status_ ? status_->refused() : 0;
+    for (const auto& e : endpoints_)
+        s.endpoints.push_back(endpoint_status(*e));
+    for (uint32_t b = 0; b < router_.bonds().size(); b++) {
+        const Bond& bond = router_.bonds()[b];
+        Status::Bond& out = s.bonds.emplace_back();
+        out.name = bond.name();
+        out.tx_active = bond.tx_active();
+        const Link* active = router_.link(bond.active_link());
+        out.active = active ? active->name() : "";
+        out.switches = bond.switches();
+        for (LinkId id = 0; id < router_.link_id_bound(); id++) {
+            const Link* link = router_.link(id);
+            if (link && router_.bond_of(*link) == b)
+                out.links.push_back({link->name(), id == bond.active_link()});
         }
-        out += "}";
+        out.renumber = bond.renumber_counters();
     }
-    return out + "],\"filters\":" + chain_->status_json() + "}";
+    s.frames_routed = router_.frames_routed();
+    s.frames_without_destination = router_.frames_without_destination();
+    s.frames_held_back = router_.frames_held_back();
+    s.filters = chain_->report();
+    return s;
 }
 
 }  // namespace mavbond

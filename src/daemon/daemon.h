@@ -13,13 +13,14 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
-#include "routing/link_events.h"
-#include "routing/local_source.h"
 #include "daemon/metrics_http.h"
-#include "routing/router.h"
+#include "daemon/status.h"
 #include "daemon/status_socket.h"
 #include "endpoints/endpoint.h"
 #include "routing/filter_chain.h"
+#include "routing/link_events.h"
+#include "routing/local_source.h"
+#include "routing/router.h"
 
 namespace mavbond {
 
@@ -32,18 +33,6 @@ struct DaemonOptions {
     std::string log_level;   // "" = the config's
     std::string plugin_dir;  // "" = the config's, else the compiled-in default
     bool check_config = false;  // only validate: warnings and errors, no progress lines
-};
-
-/// Per-frame problems are never logged one by one: every report_interval, one line per
-/// endpoint that had any says how many of each.
-class ProblemReport {
-public:
-    void run(const std::vector<Endpoint::Ptr>& endpoints, Duration interval);
-    /// Forgets an endpoint that goes away (a new one by its name starts from zero).
-    void forget(const Endpoint& endpoint) { last_.erase(&endpoint); }
-
-private:
-    std::map<const Endpoint*, LinkCounters> last_;
 };
 
 class Daemon {
@@ -73,8 +62,9 @@ public:
     /// the new config was applied.
     bool reload();
 
-    /// Every endpoint's counters, the bonds and each filter's status, as one JSON document.
-    std::string status_document() const;
+    /// Every endpoint's counters, the bonds, the router's totals and each filter's report,
+    /// now: what the status socket, /metrics and the log lines show.
+    Status status() const;
 
 private:
     Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config);

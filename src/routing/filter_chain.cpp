@@ -275,33 +275,14 @@ bool FilterChain::on_egress(const Frame& frame, const Link& to) {
     return true;
 }
 
-std::string FilterChain::status_json() const {
-    std::string out = "[";
-    std::vector<char> buf(16384);
-    for (size_t i = 0; i < instances_.size(); i++) {
-        const Instance& inst = *instances_[i];
-        out += i ? "," : "";
-        out += "{\"name\":\"" + inst.host.name + "\",\"plugin\":\"" + inst.entry->plugin +
-               "\",\"dropped\":" + std::to_string(inst.dropped);
-        if (auto status = inst.plugin->descriptor().status_json) {
-            size_t need = status(inst.self, buf.data(), buf.size());
-            if (need >= buf.size()) {
-                buf.resize(need + 1);
-                need = status(inst.self, buf.data(), buf.size());
-            }
-            if (need > 0 && need < buf.size())
-                out += ",\"status\":" + std::string(buf.data(), need);
-        }
-        out += "}";
-    }
-    return out + "]";
-}
-
 namespace {
 
-/// What the metrics sink needs to know about the instance whose samples it takes.
+/// Takes one instance's samples through the metrics hook: checks the ABI's rules, names and
+/// labels each as /metrics shows it, and keeps those `families` (the whole chain's so far)
+/// accepts.
 struct MetricSink {
-    MetricSet& out;
+    std::vector<MetricSample>& out;
+    MetricSet& families;
     const std::string& plugin;
     const std::string& instance;
     bool& bad_logged;
@@ -324,45 +305,76 @@ struct MetricSink {
     std::string add(const mavbond_metric_sample* s) {
         if (!s || s->struct_size < sizeof(mavbond_metric_sample) || !s->name || !s->help)
             return "a sample without name or help, or of an older struct size";
-        std::string name = "mavbond_" + plugin + "_" + s->name;
+        MetricSample m;
+        m.name = "mavbond_" + plugin + "_" + s->name;
+        m.help = s->help;
         for (const char* c = s->name; *c; c++) {
             if (!(isalnum(static_cast<unsigned char>(*c)) || *c == '_'))
-                return name + ": the name may hold only a-z A-Z 0-9 _";
+                return m.name + ": the name may hold only a-z A-Z 0-9 _";
         }
         if (s->label_count > MAVBOND_METRIC_MAX_LABELS || (s->label_count && !s->labels))
-            return name + ": more than " + std::to_string(MAVBOND_METRIC_MAX_LABELS) + " labels";
-        MetricLabels labels{{"filter", instance}};
+            return m.name + ": more than " + std::to_string(MAVBOND_METRIC_MAX_LABELS) + " labels";
+        m.labels = {{"filter", instance}};
         for (uint32_t i = 0; i < s->label_count; i++) {
             const mavbond_label& l = s->labels[i];
             if (!l.name || !l.value)
-                return name + ": a label without name or value";
+                return m.name + ": a label without name or value";
             if (std::strcmp(l.name, "filter") == 0)
-                return name + ": the label 'filter' is the host's";
-            labels.emplace_back(l.name, l.value);
+                return m.name + ": the label 'filter' is the host's";
+            m.labels.emplace_back(l.name, l.value);
         }
-        Result<void> r;
-        if (s->type == MAVBOND_METRIC_COUNTER)
-            r = out.counter(name, s->help, s->count, labels);
-        else if (s->type == MAVBOND_METRIC_GAUGE)
-            r = out.gauge(name, s->help, s->value, labels);
-        else
-            return name + ": unknown type " + std::to_string(static_cast<int>(s->type));
-        return r ? "" : r.error().message;
+        if (s->type == MAVBOND_METRIC_COUNTER) {
+            m.type = MetricSet::Type::Counter;
+            m.count = s->count;
+        } else if (s->type == MAVBOND_METRIC_GAUGE) {
+            m.type = MetricSet::Type::Gauge;
+            m.value = s->value;
+        } else {
+            return m.name + ": unknown type " + std::to_string(static_cast<int>(s->type));
+        }
+        if (Result<void> r = families.add(m); !r)
+            return r.error().message;
+        out.push_back(std::move(m));
+        return "";
     }
 };
 
+std::string status_of(const mavbond_plugin_descriptor& d, void* self) {
+    if (!d.status_json)
+        return "";
+    std::string buf(16384, '\0');
+    size_t need = d.status_json(self, buf.data(), buf.size());
+    if (need >= buf.size()) {
+        buf.assign(need + 1, '\0');
+        need = d.status_json(self, buf.data(), buf.size());
+    }
+    buf.resize(need < buf.size() ? need : 0);
+    return buf;
+}
+
 }  // namespace
 
-void FilterChain::collect_metrics(MetricSet& out) const {
+std::vector<FilterReport> FilterChain::report() const {
+    std::vector<FilterReport> reports;
+    MetricSet families;  // what the chain's samples must agree on, as one /metrics document
     const char* help = "Frames a filter dropped (its own verdicts).";
-    out.declare("mavbond_filter_dropped", help, MetricSet::Type::Counter);
     for (const auto& inst : instances_) {
-        out.counter("mavbond_filter_dropped", help, inst->dropped, {{"filter", inst->host.name}, {"plugin", inst->entry->plugin}});
-        if (auto hook = inst->plugin->descriptor().metrics) {
-            MetricSink sink{out, inst->entry->plugin, inst->host.name, inst->bad_metric_logged};
-            hook(inst->self, MetricSink::take, &sink);
+        const mavbond_plugin_descriptor& d = inst->plugin->descriptor();
+        FilterReport& r = reports.emplace_back();
+        r.name = inst->host.name;
+        r.plugin = inst->entry->plugin;
+        r.dropped = inst->dropped;
+        r.status_json = status_of(d, inst->self);
+        MetricSample dropped{MetricSet::Type::Counter, "mavbond_filter_dropped", help,
+                             {{"filter", r.name}, {"plugin", r.plugin}}, inst->dropped, 0};
+        families.add(dropped);
+        r.samples.push_back(std::move(dropped));
+        if (d.metrics) {
+            MetricSink sink{r.samples, families, r.plugin, r.name, inst->bad_metric_logged};
+            d.metrics(inst->self, MetricSink::take, &sink);
         }
     }
+    return reports;
 }
 
 // --- HostServices --------------------------------------------------------------------------

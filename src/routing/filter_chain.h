@@ -13,12 +13,24 @@
 #include "config/config.h"
 #include "core/event_loop.h"
 #include "core/metric_set.h"
-#include "routing/router.h"
 #include "routing/plugin_host.h"
 #include "routing/plugin_loader.h"
+#include "routing/router.h"
 #include "routing/stream_positions.h"
 
 namespace mavbond {
+
+/// A filter as the status shows it at one moment: the status socket, /metrics, the logs.
+struct FilterReport {
+    std::string name;         // "dedup", or "dedup#2" for a second instance
+    std::string plugin;
+    uint64_t dropped = 0;     // frames its own verdicts dropped
+    std::string status_json;  // its plugin's status object; "" without the hook
+    /// Its drop count and its plugin's metrics hook's samples, named mavbond_PLUGIN_NAME and
+    /// labelled filter="INSTANCE". A sample that breaks a rule of the ABI, or one the chain's
+    /// families cannot take, is left out (logged once per filter).
+    std::vector<MetricSample> samples;
+};
 
 class FilterChain : public FrameFilter, private HostServices {
 public:
@@ -34,12 +46,8 @@ public:
     void on_link(const Link& link, bool added) override;
 
     size_t size() const { return instances_.size(); }
-    /// {"filters":[{"plugin":..,"dropped":..,"status":{...}}]} for the status socket.
-    std::string status_json() const;
-    /// Each filter's drop count and what its plugin's metrics hook gives: samples named
-    /// mavbond_PLUGIN_NAME and labelled filter="INSTANCE". A sample that breaks a rule of the
-    /// ABI is skipped, and logged once per filter.
-    void collect_metrics(MetricSet& out) const;
+    /// What each filter shows of itself now, in chain order (see FilterReport).
+    std::vector<FilterReport> report() const;
 
 private:
     struct Instance;

@@ -4,9 +4,9 @@
 #include <array>
 
 #include "core/log.h"
-#include "routing/router.h"
 #include "mavlink/frame_parser.h"
 #include "mavlink/frame_writer.h"
+#include "routing/router.h"
 
 namespace mavbond {
 

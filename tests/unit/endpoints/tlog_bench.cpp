@@ -14,9 +14,9 @@
 #include <vector>
 
 #include "core/event_loop.h"
-#include "routing/router.h"
 #include "endpoints/endpoint.h"
 #include "endpoints/tlog_endpoint.h"
+#include "routing/router.h"
 
 namespace mavbond {
 namespace {

@@ -1,0 +1,198 @@
+#include "daemon/status.h"
+
+#include <chrono>
+
+#include "core/log.h"
+#include "mavbond_build_config.h"
+
+namespace mavbond {
+namespace {
+
+/// Help texts of the endpoint counters, in for_each_counter's names.
+const std::map<std::string, const char*>& counter_help() {
+    static const std::map<std::string, const char*> help = {
+        {"rx_frames", "Frames received whole (CRC checked, or of an unknown id when forwarded)."},
+        {"rx_bytes", "Bytes received."},
+        {"crc_errors", "Frames received with a bad CRC (dropped)."},
+        {"garbage_bytes", "Received bytes that were not part of any frame."},
+        {"unknown_ids", "Frames received with a message id the daemon does not know."},
+        {"bad_flags", "Frames received with unknown incompatibility flags (dropped)."},
+        {"rx_filtered", "Received frames dropped by allow_in/block_in."},
+        {"rx_overflows", "Datagrams the kernel dropped because the receive buffer was full."},
+        {"tx_frames", "Frames sent."},
+        {"tx_bytes", "Bytes sent."},
+        {"tx_filtered", "Frames not sent because of allow_out/block_out."},
+        {"tx_dropped", "Frames dropped on transmit: queue full, link down or a write error."},
+        {"tx_errors", "Hard write errors (ICMP unreachable, EIO, ...)."},
+        {"sig_unsigned", "Unsigned frames on a signing endpoint (dropped when signing is required)."},
+        {"sig_bad", "Frames dropped because their signature does not verify."},
+        {"sig_replay", "Signed frames dropped as replayed or too old."},
+    };
+    return help;
+}
+
+/// Help texts of the renumbering counters, in Bond::renumber_counters' names.
+const std::map<std::string, const char*>& renumber_help() {
+    static const std::map<std::string, const char*> help = {
+        {"renumbered", "Frames the bond delivered with a new sequence number."},
+        {"gaps", "Sequence numbers skipped on output: frames lost on every link of the bond."},
+        {"late_filled", "Frames delivered after a later one, given the number they had kept."},
+        {"unplaced", "Frames delivered before dedup could place them in the stream (given the next number)."},
+        {"untracked", "Frames of sources beyond the renumbering table (left as they were)."},
+        {"signed_left_alone", "Signed frames passed with their own number (the signature covers it)."},
+    };
+    return help;
+}
+
+int64_t ms_since(TimePoint t, TimePoint now) {
+    return std::chrono::duration_cast<milliseconds>(now - t).count();
+}
+
+}  // namespace
+
+Status::Endpoint endpoint_status(const Endpoint& e) {
+    return Status::Endpoint{e.name(), e.kind(), e.config().bond,
+                            e.config().signing.enabled && e.config().signing.require,
+                            e.total_counters()};
+}
+
+std::string status_json(const Status& s) {
+    std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
+                      std::to_string(std::chrono::duration_cast<seconds>(s.uptime).count()) +
+                      ",\"status_refused\":" + std::to_string(s.status_refused) + ",\"endpoints\":[";
+    for (size_t i = 0; i < s.endpoints.size(); i++) {
+        const Status::Endpoint& e = s.endpoints[i];
+        out += std::string(i ? "," : "") + "{\"name\":\"" + e.name + "\",\"kind\":\"" + e.kind +
+               "\",\"bond\":\"" + e.bond + "\"";
+        for_each_counter(e.counters, [&out](const char* name, uint64_t value) {
+            out += std::string(",\"") + name + "\":" + std::to_string(value);
+        });
+        // Milliseconds since a frame last came in; -1: never.
+        TimePoint last = e.counters.last_rx;
+        out += ",\"last_rx_ms_ago\":" +
+               std::to_string(last == TimePoint{} ? -1 : ms_since(last, s.taken)) + "}";
+    }
+    out += "],\"bonds\":[";
+    for (size_t i = 0; i < s.bonds.size(); i++) {
+        const Status::Bond& b = s.bonds[i];
+        out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
+               (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" + b.active +
+               "\",\"switches\":" + std::to_string(b.switches);
+        if (!b.renumber.empty()) {
+            out += ",\"renumber\":{";
+            for (const auto& [name, value] : b.renumber)
+                out += std::string(out.back() == '{' ? "\"" : ",\"") + name + "\":" +
+                       std::to_string(value);
+            out += "}";
+        }
+        out += "}";
+    }
+    out += "],\"filters\":[";
+    for (size_t i = 0; i < s.filters.size(); i++) {
+        const FilterReport& f = s.filters[i];
+        out += std::string(i ? "," : "") + "{\"name\":\"" + f.name + "\",\"plugin\":\"" + f.plugin +
+               "\",\"dropped\":" + std::to_string(f.dropped);
+        if (!f.status_json.empty())
+            out += ",\"status\":" + f.status_json;
+        out += "}";
+    }
+    return out + "]}";
+}
+
+MetricSet status_metrics(const Status& s) {
+    MetricSet set;
+    set.gauge("mavbond_build_info", "Always 1; the version in a label.", 1,
+              {{"version", MAVBOND_VERSION}});
+    set.gauge("mavbond_uptime_seconds", "Seconds since the daemon started.",
+              std::chrono::duration<double>(s.uptime).count());
+    // One family per counter, one sample per configured endpoint (a server's with every peer
+    // or connection it has had).
+    for (const Status::Endpoint& e : s.endpoints) {
+        MetricLabels labels{{"endpoint", e.name}, {"kind", e.kind}, {"bond", e.bond}};
+        for_each_counter(e.counters, [&](const char* name, uint64_t value) {
+            auto help = counter_help().find(name);
+            set.counter(std::string("mavbond_endpoint_") + name,
+                        help == counter_help().end() ? name : help->second, value, labels);
+        });
+        // "Last heard" for alerts on a silent link; absent until the first frame.
+        if (e.counters.last_rx != TimePoint{})
+            set.gauge("mavbond_endpoint_last_rx_age_seconds",
+                      "Seconds since a frame last came in on the endpoint.",
+                      std::chrono::duration<double>(s.taken - e.counters.last_rx).count(), labels);
+    }
+    set.counter("mavbond_router_frames_routed", "Frames the router handled (after ingress filters).",
+                s.frames_routed);
+    set.counter("mavbond_router_frames_without_destination",
+                "Frames that had nowhere to go (no other endpoint, or an unknown target).",
+                s.frames_without_destination);
+    set.counter("mavbond_router_frames_held_back",
+                "Frames of a bond's link held back past the round that read them for frames "
+                "that arrived before them on another link (after a stall).",
+                s.frames_held_back);
+    const char* active_help = "1 for the active link of a bond (tx: active), 0 for its others.";
+    set.declare("mavbond_bond_active_link", active_help, MetricSet::Type::Gauge);
+    for (const Status::Bond& b : s.bonds) {
+        set.counter("mavbond_bond_switches", "Changes of a bond's active link.", b.switches,
+                    {{"bond", b.name}});
+        set.gauge("mavbond_bond_tx_active", "1 when the bond sends on its active link only.",
+                  b.tx_active ? 1 : 0, {{"bond", b.name}});
+        for (const Status::BondLink& l : b.links)
+            set.gauge("mavbond_bond_active_link", active_help, l.active ? 1 : 0,
+                      {{"bond", b.name}, {"link", l.name}});
+        for (const auto& [name, value] : b.renumber)
+            set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
+                        {{"bond", b.name}});
+    }
+    set.declare("mavbond_filter_dropped", "Frames a filter dropped (its own verdicts).",
+                MetricSet::Type::Counter);
+    // The chain checked its samples against one another; one that clashes with a family of
+    // the host's (a plugin named like one) is left out.
+    for (const FilterReport& f : s.filters) {
+        for (const MetricSample& sample : f.samples) {
+            if (auto r = set.add(sample); !r)
+                log_debug("metrics: %s", r.error().message.c_str());
+        }
+    }
+    return set;
+}
+
+std::string counters_line(const Status::Endpoint& e, const char* what) {
+    std::string line = std::string(what) + " endpoint=" + e.name + " kind=" + e.kind;
+    for_each_counter(e.counters, [&line](const char* name, uint64_t value) {
+        line += std::string(" ") + name + "=" + std::to_string(value);
+    });
+    return line;
+}
+
+void ProblemReport::run(const Status& status, Duration interval) {
+    double secs = std::chrono::duration<double>(interval).count();
+    for (const Status::Endpoint& e : status.endpoints) {
+        const LinkCounters& now = e.counters;
+        LinkCounters& was = last_[e.name];
+        std::string what;
+        auto add = [&what](uint64_t delta, const char* label) {
+            if (delta == 0)
+                return;
+            if (!what.empty())
+                what += ", ";
+            what += std::to_string(delta) + " " + label;
+        };
+        add(now.rx.crc_errors - was.rx.crc_errors, "CRC errors");
+        add(now.rx.garbage_bytes - was.rx.garbage_bytes, "garbage bytes");
+        add(now.rx.unknown_ids - was.rx.unknown_ids, "unknown message ids");
+        add(now.rx.bad_flags - was.rx.bad_flags, "frames with unknown incompat flags");
+        add(now.rx_overflows - was.rx_overflows,
+            "datagrams dropped by the kernel (receive buffer full: raise rx_buffer)");
+        add(now.tx_dropped - was.tx_dropped, "frames dropped on transmit");
+        add(now.tx_errors - was.tx_errors, "write errors");
+        add(now.sig_unsigned - was.sig_unsigned,
+            e.signing_required ? "unsigned frames dropped" : "unsigned frames let through");
+        add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
+        add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
+        if (!what.empty())
+            log_notice("[%s] %s in the last %.0fs", e.name.c_str(), what.c_str(), secs);
+        was = now;
+    }
+}
+
+}  // namespace mavbond

@@ -1,0 +1,75 @@
+// The daemon's status: taken once (Daemon::status()) and rendered four ways, each from the same
+// figures: the status socket's JSON (mavbondctl), Prometheus text (/metrics), the counters log
+// lines (SIGUSR1, exit, an endpoint stopped by a reload) and the periodic problem report.
+#pragma once
+
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "core/clock.h"
+#include "core/metric_set.h"
+#include "endpoints/endpoint.h"
+#include "routing/filter_chain.h"
+
+namespace mavbond {
+
+struct Status {
+    /// A configured endpoint: a server's figures are its own and every peer's or connection's
+    /// it has had.
+    struct Endpoint {
+        std::string name;
+        std::string kind;  // "udp-server", "uart", ...
+        std::string bond;  // "" when not in one
+        bool signing_required = false;
+        LinkCounters counters;
+    };
+    struct BondLink {
+        std::string name;
+        bool active = false;
+    };
+    struct Bond {
+        std::string name;
+        bool tx_active = false;
+        std::string active;          // the active link's name; "" when none is chosen
+        uint64_t switches = 0;
+        std::vector<BondLink> links;  // the members' links attached now
+        std::vector<std::pair<const char*, uint64_t>> renumber;  // empty: no renumbering
+    };
+
+    TimePoint taken;
+    Duration uptime{};
+    uint64_t status_refused = 0;  // status socket connections refused by the credentials check
+    std::vector<Endpoint> endpoints;
+    std::vector<Bond> bonds;
+    uint64_t frames_routed = 0;
+    uint64_t frames_without_destination = 0;
+    uint64_t frames_held_back = 0;
+    std::vector<FilterReport> filters;
+};
+
+/// What one endpoint shows of itself now.
+Status::Endpoint endpoint_status(const Endpoint& endpoint);
+
+/// The status socket's document: version, uptime, endpoints with every counter, bonds, filters.
+std::string status_json(const Status& status);
+/// The /metrics document, as Prometheus families.
+MetricSet status_metrics(const Status& status);
+/// "WHAT endpoint=NAME kind=KIND counter=value..." (WHAT: "stats" for the periodic and exit
+/// lines, which tools parse).
+std::string counters_line(const Status::Endpoint& endpoint, const char* what = "stats");
+
+/// Per-frame problems are never logged one by one: every report_interval, one line per
+/// endpoint that had any says how many of each.
+class ProblemReport {
+public:
+    void run(const Status& status, Duration interval);
+    /// Forgets an endpoint that goes away (a new one by its name starts from zero).
+    void forget(const std::string& endpoint) { last_.erase(endpoint); }
+
+private:
+    std::map<std::string, LinkCounters> last_;  // by endpoint name
+};
+
+}  // namespace mavbond
