@@ -31,7 +31,6 @@ namespace {
 constexpr uint32_t kMaxMessageId = 0xFFFFFF;           // MAVLink v2 msgid is 24 bits
 constexpr size_t kMinTxQueueBytes = kMaxFrameLen;      // one largest frame (280 bytes)
 constexpr size_t kMaxTxQueueBytes = 64u * 1024 * 1024; // a typo guard, far above any real need
-constexpr uint64_t kMinTlogFileBytes = 4096;          // many records per file, never one
 constexpr std::string_view kDurationExamples = "e.g. 250ms, 2s, 1.5s, 1m";
 
 struct ConfigError {
@@ -90,16 +89,17 @@ std::optional<uint64_t> parse_byte_size(std::string_view text) {
     return *n * unit;
 }
 
-std::string format_duration(Duration d) {
-    auto ns = d.count();
-    if (ns % 1'000'000'000 == 0)
-        return std::to_string(ns / 1'000'000'000) + "s";
-    if (ns % 1'000'000 == 0)
-        return std::to_string(ns / 1'000'000) + "ms";
-    if (ns % 1'000 == 0)
-        return std::to_string(ns / 1'000) + "us";
-    return std::to_string(ns) + "ns";
+/// 65536 -> "64KiB", 1073741824 -> "1GiB": the largest unit that divides it.
+std::string format_size(uint64_t n) {
+    for (auto [unit, mult] : {std::pair<const char*, uint64_t>{"GiB", 1u << 30},
+                              {"MiB", 1u << 20},
+                              {"KiB", 1u << 10}}) {
+        if (n >= mult && n % mult == 0)
+            return std::to_string(n / mult) + unit;
+    }
+    return std::to_string(n);
 }
+
 
 const char* kind_name(const YAML::Node& node) {
     switch (node.Type()) {
@@ -144,7 +144,7 @@ MapView make_view(const YAML::Node& map) {
 
 class Parser {
 public:
-    explicit Parser(std::string name) : name_(std::move(name)) {}
+    Parser(std::string name, EndpointSchemas types) : name_(std::move(name)), types_(types) {}
 
     Config parse(const YAML::Node& root);
 
@@ -194,7 +194,14 @@ private:
     const YAML::Node& sequence(const Entry& e, const std::string& ctx, bool required) const;
 
     void parse_endpoint(const YAML::Node& node, size_t index);
-    void parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const;
+    /// The endpoint type (and mode) of an entry, by its `type:` and `mode:`.
+    const EndpointSchema& parse_endpoint_type(const MapView& view, const YAML::Node& node,
+                                              const std::string& ctx) const;
+    /// One option of an endpoint's type, as its kind reads it.
+    /// One option of an endpoint's type, as its kind reads it (`given`: not its default).
+    OptionValue endpoint_option(const EndpointOption& option, const Entry& e,
+                                const std::string& ctx, bool given) const;
+    OptionValue parse_address(const Entry& e, const std::string& ctx) const;
     void parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const;
     void parse_bond(const YAML::Node& node, size_t index);
     void parse_filter(const YAML::Node& node, size_t index);
@@ -205,6 +212,7 @@ private:
     void cross_check();
 
     std::string name_;
+    EndpointSchemas types_;
     Config config_;
     std::map<std::string, YAML::Mark> endpoint_names_;
     std::map<std::string, YAML::Mark> bond_names_;
@@ -396,7 +404,57 @@ Config Parser::parse(const YAML::Node& root) {
     return std::move(config_);
 }
 
+const EndpointSchema& Parser::parse_endpoint_type(const MapView& view, const YAML::Node& node,
+                                            const std::string& ctx) const {
+    // The words `type:` and `mode:` take, once each, in table order.
+    auto words = [](const std::vector<std::string>& w, const char* last) {
+        std::string out;
+        for (size_t i = 0; i < w.size(); i++)
+            out += (i == 0 ? "" : i + 1 == w.size() ? last : ", ") + w[i];
+        return out;
+    };
+    std::vector<std::string> types;
+    for (const EndpointSchema* t : types_) {
+        if (std::find(types.begin(), types.end(), t->type) == types.end())
+            types.emplace_back(t->type);
+    }
+    const Entry* type = view.find("type");
+    if (!type)
+        fail(node.Mark(), ctx + "missing required key 'type' (" + words(types, " or ") + ")");
+    const std::string& word = scalar(*type, ctx);
+    std::vector<const EndpointSchema*> modes;
+    std::vector<std::string> mode_words;
+    for (const EndpointSchema* t : types_) {
+        if (word == t->type) {
+            modes.push_back(t);
+            if (t->mode)
+                mode_words.emplace_back(t->mode);
+        }
+    }
+    if (modes.empty())
+        fail(value_mark(*type), ctx + "invalid type '" + word + "' (allowed: " +
+                                    words(types, ", ") + ")");
+    if (mode_words.empty())
+        return *modes.front();
+    const Entry* mode = view.find("mode");
+    if (!mode)
+        fail(node.Mark(), ctx + "missing required key 'mode' (" + words(mode_words, " or ") + ")");
+    const std::string& mode_word = scalar(*mode, ctx);
+    for (const EndpointSchema* t : modes) {
+        if (mode_word == t->mode)
+            return *t;
+    }
+    fail(value_mark(*mode), ctx + "invalid mode '" + mode_word + "' (allowed: " +
+                                words(mode_words, ", ") + ")");
+}
+
 void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
+    // The keys every endpoint takes, and those only an endpoint frames come from takes; the
+    // rest are its type's (its table).
+    static const std::set<std::string_view> kCommonKeys = {"name", "type", "tx_queue",
+                                                           "allow_out", "block_out"};
+    static const std::set<std::string_view> kReceiverKeys = {"allow_in", "block_in", "bond",
+                                                             "signing"};
     std::string ctx = "endpoint #" + std::to_string(index) + ": ";
     if (!node.IsMap())
         fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
@@ -413,11 +471,16 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     }
     ctx = "endpoint '" + ep.name + "': ";
 
-    static const std::set<std::string_view> kKeys = {
-        "name", "type", "mode", "address", "peer_timeout", "reconnect_min", "reconnect_max",
-        "device", "baud", "flow_control", "tx_queue", "allow_in", "block_in", "allow_out",
-        "block_out", "bond", "signing", "directory", "max_size", "rx_buffer"};
-    check_keys(view, ctx, &kKeys);
+    // Every key some endpoint takes; any other is unknown.
+    std::set<std::string_view> known(kCommonKeys.begin(), kCommonKeys.end());
+    known.insert(kReceiverKeys.begin(), kReceiverKeys.end());
+    for (const EndpointSchema* t : types_) {
+        if (t->mode)
+            known.insert("mode");
+        for (const EndpointOption& o : t->options)
+            known.insert(o.key);
+    }
+    check_keys(view, ctx, &known);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
         !inserted) {
@@ -426,105 +489,44 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
                                          std::to_string(it->second.line + 1) + ")");
     }
 
-    if (!view.find("type"))
-        fail(node.Mark(), ctx + "missing required key 'type' (udp, tcp, uart or tlog)");
-    ep.type = choice<EndpointType>(*view.find("type"), ctx,
-                                   {{"udp", EndpointType::Udp},
-                                    {"tcp", EndpointType::Tcp},
-                                    {"uart", EndpointType::Uart},
-                                    {"tlog", EndpointType::Tlog}});
-    const char* type_word = ep.type == EndpointType::Udp    ? "udp"
-                            : ep.type == EndpointType::Tcp  ? "tcp"
-                            : ep.type == EndpointType::Uart ? "uart"
-                                                            : "tlog";
-    bool networked = ep.type == EndpointType::Udp || ep.type == EndpointType::Tcp;
-    if (networked) {
-        if (!view.find("mode"))
-            fail(node.Mark(), ctx + "missing required key 'mode' (server or client)");
-        ep.mode = choice<EndpointMode>(*view.find("mode"), ctx,
-                                       {{"server", EndpointMode::Server},
-                                        {"client", EndpointMode::Client}});
-    }
-    const char* mode_word = ep.mode == EndpointMode::Server ? "server" : "client";
-
-    // Which keys this type (and mode) takes, beyond the common ones.
-    std::set<std::string_view> own = {"name", "type", "tx_queue", "allow_in", "block_in",
-                                      "allow_out", "block_out", "bond", "signing"};
-    std::set<std::string_view> by_type;  // keys the type takes in some mode
-    switch (ep.type) {
-    case EndpointType::Udp:
-        by_type = {"mode", "address", "peer_timeout", "rx_buffer"};
-        own.insert({"mode", "address", "rx_buffer"});
-        if (ep.mode == EndpointMode::Server)
-            own.insert("peer_timeout");
-        break;
-    case EndpointType::Tcp:
-        by_type = {"mode", "address", "reconnect_min", "reconnect_max"};
-        own.insert({"mode", "address"});
-        if (ep.mode == EndpointMode::Client)
-            own.insert({"reconnect_min", "reconnect_max"});
-        break;
-    case EndpointType::Uart:
-        by_type = {"device", "baud", "flow_control", "reconnect_min", "reconnect_max"};
-        own.insert(by_type.begin(), by_type.end());
-        break;
-    case EndpointType::Tlog:
-        // A log only takes what is routed to it: nothing comes in, it is no link of a bond.
-        by_type = {"directory", "max_size"};
-        own = {"name", "type", "tx_queue", "allow_out", "block_out", "directory", "max_size"};
-        break;
+    const EndpointSchema& type = parse_endpoint_type(view, node, ctx);
+    ep.schema = &type;
+    // The keys this type and mode takes; those its type takes in another mode are named so.
+    std::set<std::string_view> own(kCommonKeys.begin(), kCommonKeys.end());
+    if (type.receives)
+        own.insert(kReceiverKeys.begin(), kReceiverKeys.end());
+    std::set<std::string_view> other_modes;
+    for (const EndpointSchema* t : types_) {
+        if (std::string_view(t->type) != type.type)
+            continue;
+        for (const EndpointOption& o : t->options)
+            (t == &type ? own : other_modes).insert(o.key);
+        if (t->mode)
+            own.insert("mode");
     }
     for (const auto& e : view.entries) {
         if (own.count(e.name))
             continue;
-        std::string what = by_type.count(e.name) ? std::string(type_word) + " " + mode_word
-                                                 : std::string(type_word);
-        fail(e.key.Mark(), ctx + "key '" + e.name + "' does not apply to a " + what +
-                               " endpoint");
+        std::string what = other_modes.count(e.name) ? type.title() : std::string(type.type);
+        fail(e.key.Mark(), ctx + "key '" + e.name + "' does not apply to a " + what + " endpoint");
     }
 
-    if (networked) {
-        if (!view.find("address"))
-            fail(node.Mark(), ctx + "missing required key 'address' (host:port)");
-        parse_address(*view.find("address"), ctx, ep);
-    } else if (ep.type == EndpointType::Tlog) {
-        ep.directory = required_scalar(view, node, "directory", ctx);
-        if (const Entry* e = view.find("max_size")) {
-            const std::string& text = scalar(*e, ctx);
-            auto n = parse_byte_size(text);
-            if (!n)
-                fail(value_mark(*e), ctx + "'max_size': '" + text +
-                                         "' is not a size in bytes (e.g. 64MiB, 1GiB)");
-            if (*n < kMinTlogFileBytes)
-                fail(value_mark(*e), ctx + "'max_size': " + text + " is below the minimum of " +
-                                         std::to_string(kMinTlogFileBytes) + " bytes");
-            ep.max_size = *n;
+    for (const EndpointOption& option : type.options) {
+        if (const Entry* e = view.find(option.key)) {
+            ep.options.set(option.key, endpoint_option(option, *e, ctx, true));
+        } else if (option.default_value) {
+            Entry fallback{YAML::Node(option.key), YAML::Node(option.default_value), option.key};
+            ep.options.set(option.key, endpoint_option(option, fallback, ctx, false), false);
+        } else if (option.required) {
+            fail(node.Mark(), ctx + "missing required key '" + option.key + "'" +
+                                  (option.kind == OptionKind::Address ? " (host:port)" : ""));
         }
-    } else {
-        ep.device = required_scalar(view, node, "device", ctx);
-        if (const Entry* e = view.find("baud")) {
-            const std::string& text = scalar(*e, ctx);
-            auto baud = parse_u64(text);
-            if (!baud || *baud == 0 || *baud > std::numeric_limits<uint32_t>::max())
-                fail(value_mark(*e), ctx + "'baud': '" + text + "' is not a positive integer");
-            ep.baud = static_cast<uint32_t>(*baud);
-        }
-        if (const Entry* e = view.find("flow_control"))
-            ep.flow_control = boolean(*e, ctx);
     }
-    if (const Entry* e = view.find("peer_timeout"))
-        ep.peer_timeout = duration(*e, ctx, true);
-    const Entry* rmin = view.find("reconnect_min");
-    const Entry* rmax = view.find("reconnect_max");
-    if (rmin)
-        ep.reconnect_min = duration(*rmin, ctx, true);
-    if (rmax)
-        ep.reconnect_max = duration(*rmax, ctx, true);
-    if (ep.reconnect_max < ep.reconnect_min) {
-        fail(value_mark(rmax ? *rmax : *rmin),
-             ctx + "'reconnect_max' (" + format_duration(ep.reconnect_max) +
-                 ") must not be below 'reconnect_min' (" + format_duration(ep.reconnect_min) +
-                 ")");
+    if (type.check) {
+        if (auto broken = type.check(ep.options)) {
+            const Entry* e = view.find(broken->first);
+            fail(e ? value_mark(*e) : node.Mark(), ctx + broken->second);
+        }
     }
 
     if (const Entry* e = view.find("tx_queue")) {
@@ -539,14 +541,6 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
                                      std::to_string(kMinTxQueueBytes) +
                                      " bytes (one largest frame)");
         ep.tx_queue_bytes = static_cast<size_t>(*n);
-    }
-    if (const Entry* e = view.find("rx_buffer")) {
-        const std::string& text = scalar(*e, ctx);
-        auto n = parse_byte_size(text);
-        if (!n || *n < kMinRxBuffer || *n > kMaxRxBuffer)
-            fail(value_mark(*e), ctx + "'rx_buffer': '" + text +
-                                     "' is not a size between 64KiB and 1GiB (e.g. 16MiB)");
-        ep.rx_buffer = static_cast<size_t>(*n);
     }
     if (const Entry* e = view.find("allow_in"))
         ep.filter_in.allow = message_ids(*e, ctx);
@@ -567,7 +561,59 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     config_.endpoints.push_back(std::move(ep));
 }
 
-void Parser::parse_address(const Entry& e, const std::string& ctx, EndpointConfig& ep) const {
+OptionValue Parser::endpoint_option(const EndpointOption& option, const Entry& e,
+                                    const std::string& ctx, bool given) const {
+    OptionValue v;
+    const std::string key = "'" + std::string(option.key) + "'";
+    switch (option.kind) {
+    case OptionKind::Flag:
+        v.flag = boolean(e, ctx);
+        break;
+    case OptionKind::Time:
+        v.duration = duration(e, ctx, true);
+        break;
+    case OptionKind::Address:
+        v = parse_address(e, ctx);
+        break;
+    case OptionKind::Text:
+        v.text = scalar(e, ctx);
+        if (v.text.empty())
+            fail(value_mark(e), ctx + key + " must not be empty");
+        break;
+    case OptionKind::Count: {
+        const std::string& text = scalar(e, ctx);
+        auto n = parse_u64(text);
+        if (!n || *n == 0 || *n > std::numeric_limits<uint32_t>::max())
+            fail(value_mark(e), ctx + key + ": '" + text + "' is not a positive integer");
+        v.number = *n;
+        break;
+    }
+    case OptionKind::Size: {
+        const std::string& text = scalar(e, ctx);
+        auto n = parse_byte_size(text);
+        if (option.max) {
+            // A bounded size: one message for what is not one, or out of bounds.
+            if (!n || *n < option.min || *n > option.max)
+                fail(value_mark(e), ctx + key + ": '" + text + "' is not a size between " +
+                                        format_size(option.min) + " and " + format_size(option.max) +
+                                        " (e.g. " + option.default_value + ")");
+        } else {
+            if (!n)
+                fail(value_mark(e), ctx + key + ": '" + text +
+                                        "' is not a size in bytes (e.g. 64MiB, 1GiB)");
+            // A default below the minimum means "no limit".
+            if (*n < option.min && given)
+                fail(value_mark(e), ctx + key + ": " + text + " is below the minimum of " +
+                                        std::to_string(option.min) + " bytes");
+        }
+        v.number = *n;
+        break;
+    }
+    }
+    return v;
+}
+
+OptionValue Parser::parse_address(const Entry& e, const std::string& ctx) const {
     const std::string& text = scalar(e, ctx);
     std::string where = ctx + "'address': ";
     auto colon = text.rfind(':');
@@ -585,8 +631,10 @@ void Parser::parse_address(const Entry& e, const std::string& ctx, EndpointConfi
     auto port = parse_u64(port_text);
     if (!port || *port < 1 || *port > 65535)
         fail(value_mark(e), where + "port '" + port_text + "' is not in 1..65535");
-    ep.host = host;
-    ep.port = static_cast<uint16_t>(*port);
+    OptionValue v;
+    v.text = host;
+    v.port = static_cast<uint16_t>(*port);
+    return v;
 }
 
 void Parser::parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const {
@@ -975,13 +1023,39 @@ std::optional<std::string> document_error(const std::string& text, const std::st
 
 }  // namespace
 
-Result<Config> parse_config(const std::string& text, const std::string& name) {
+std::string format_duration(Duration d) {
+    auto ns = d.count();
+    if (ns % 1'000'000'000 == 0)
+        return std::to_string(ns / 1'000'000'000) + "s";
+    if (ns % 1'000'000 == 0)
+        return std::to_string(ns / 1'000'000) + "ms";
+    if (ns % 1'000 == 0)
+        return std::to_string(ns / 1'000) + "us";
+    return std::to_string(ns) + "ns";
+}
+
+const EndpointOption* EndpointSchema::find(std::string_view key) const {
+    for (const EndpointOption& o : options) {
+        if (key == o.key)
+            return &o;
+    }
+    return nullptr;
+}
+
+const OptionValue& EndpointOptions::at(std::string_view key) const {
+    static const OptionValue kAbsent;
+    auto it = values_.find(key);
+    return it == values_.end() ? kAbsent : it->second;
+}
+
+Result<Config> parse_config(const std::string& text, const std::string& name,
+                            EndpointSchemas types) {
     if (auto error = control_character_error(text, name))
         return make_error(*error);
     try {
         if (auto error = document_error(text, name))
             return make_error(*error);
-        Parser parser(name);
+        Parser parser(name, types);
         return parser.parse(YAML::Load(text));
     } catch (const ConfigError& e) {
         return make_error(e.message);
@@ -1008,11 +1082,46 @@ Result<std::string> read_text_file(const std::string& path) {
     return text;
 }
 
-Result<Config> load_config(const std::string& path) {
+Result<Config> load_config(const std::string& path, EndpointSchemas types) {
     auto text = read_text_file(path);
     if (!text)
         return text.error();
-    return parse_config(text.value(), path);
+    return parse_config(text.value(), path, types);
+}
+
+namespace {
+
+/// Text for a roff paragraph: a hyphen written as \- (it may be a path's or an option's).
+std::string roff(std::string_view text) {
+    std::string out;
+    for (char c : text)
+        out += c == '-' ? std::string("\\-") : std::string(1, c);
+    return out;
+}
+
+}  // namespace
+
+std::string endpoint_options_manual(EndpointSchemas types) {
+    static const char* const kKinds[] = {"true or false", "a positive integer",
+                                         "a duration such as 250ms or 2s",
+                                         "a size in bytes such as 16KiB or 64MiB",
+                                         "host:port, the host an IPv4 address or localhost",
+                                         "a text"};
+    std::string out;
+    for (const EndpointSchema* t : types) {
+        out += ".SS \"type: " + std::string(t->type) +
+               (t->mode ? ", mode: " + std::string(t->mode) : "") + "\"\n" + roff(t->about) + "\n";
+        for (const EndpointOption& o : t->options) {
+            // .BR: the key bold, then in roman what it takes.
+            out += ".TP\n.BR " + std::string(o.key) + " \" (" + kKinds[static_cast<int>(o.kind)];
+            if (o.default_value)
+                out += std::string("; default ") + o.default_value;
+            else if (o.required)
+                out += "; required";
+            out += ")\"\n" + roff(o.help) + "\n";
+        }
+    }
+    return out;
 }
 
 namespace {

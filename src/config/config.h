@@ -9,6 +9,7 @@
 #include <string_view>
 #include <vector>
 
+#include "config/endpoint_schema.h"
 #include "core/clock.h"
 #include "core/log.h"
 #include "core/result.h"
@@ -17,14 +18,6 @@
 namespace mavbond {
 
 constexpr int kExitConfig = 78;  // EX_CONFIG from sysexits.h
-
-// A UDP socket's receive buffer, in the bytes the kernel counts: what a link's backlog may fill
-// while the daemon does not read (a stalled companion computer). The kernel counts about 830
-// bytes per small datagram and 1,280 per largest frame (measured on loopback), so a 1 s stall
-// at 10,000 datagrams/s takes 8.3 to 12.8 MB; 16 MiB holds it. It costs memory only while full.
-constexpr size_t kDefaultRxBuffer = 16u << 20;
-constexpr size_t kMinRxBuffer = 64u << 10;
-constexpr size_t kMaxRxBuffer = 1u << 30;
 
 /// Where a value came from, for messages about it after loading.
 struct SourceMark {
@@ -52,30 +45,18 @@ struct SigningConfig {
     bool operator==(const SigningConfig&) const = default;
 };
 
-enum class EndpointType { Udp, Tcp, Uart, Tlog };
-enum class EndpointMode { Server, Client };  // udp, tcp
-
+/// One `endpoints:` entry: the keys every endpoint takes, and its type's own (`options`, read
+/// by its schema's table).
 struct EndpointConfig {
     std::string name;
-    EndpointType type = EndpointType::Udp;
-    EndpointMode mode = EndpointMode::Server;
-    std::string host;          // udp/tcp: dotted-quad IPv4 ("0.0.0.0"); "localhost" -> "127.0.0.1"
-    uint16_t port = 0;         // udp/tcp
-    std::string device;        // uart
-    uint32_t baud = 57600;     // uart: any rate, standard or not
-    bool flow_control = false; // uart: RTS/CTS
-    Duration peer_timeout = seconds(30);      // udp server: forget a silent peer
-    Duration reconnect_min = milliseconds(500);  // tcp client, uart: backoff start
-    Duration reconnect_max = seconds(5);         // tcp client, uart: backoff cap
-    size_t tx_queue_bytes = 16384;             // bounded transmit queue
-    size_t rx_buffer = kDefaultRxBuffer;       // udp: the socket's receive buffer (kernel bytes)
-    MessageFilterConfig filter_in;             // keys allow_in / block_in
-    MessageFilterConfig filter_out;            // keys allow_out / block_out
-    std::string bond;                          // bond name ("" = none); used by the bonding layer
-    SigningConfig signing;                     // key `signing`
-    std::string directory;                     // tlog: where the .tlog files go
-    uint64_t max_size = 0;                     // tlog: a new file past this many bytes; 0 = no limit
-    SourceMark mark;                           // where this endpoint was declared
+    const EndpointSchema* schema = nullptr;  // its type (and mode); the tables live for the run
+    EndpointOptions options;                 // the keys of its type's table
+    size_t tx_queue_bytes = 16384;           // bounded transmit queue
+    MessageFilterConfig filter_in;           // keys allow_in / block_in
+    MessageFilterConfig filter_out;          // keys allow_out / block_out
+    std::string bond;                        // bond name ("" = none)
+    SigningConfig signing;                   // key `signing`
+    SourceMark mark;                         // where this endpoint was declared
     bool operator==(const EndpointConfig&) const = default;
 };
 
@@ -165,10 +146,14 @@ bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterC
 /// A whole file as text; the error is "path: cannot open|read: reason".
 Result<std::string> read_text_file(const std::string& path);
 
-/// Loads and validates a config file. The error's message is "file:line:column: what".
-Result<Config> load_config(const std::string& path);
+/// Loads and validates a config file, its endpoints by the tables of `types`. The error's
+/// message is "file:line:column: what".
+Result<Config> load_config(const std::string& path, EndpointSchemas types);
 /// Same, from text (for tests); `name` stands in for the file name in messages.
-Result<Config> parse_config(const std::string& text, const std::string& name);
+Result<Config> parse_config(const std::string& text, const std::string& name,
+                            EndpointSchemas types);
+/// The manual's list of every endpoint type's options (roff, for mavbond.yaml(5)).
+std::string endpoint_options_manual(EndpointSchemas types);
 
 /// "250ms", "2s", "1.5s", "1m" -> Duration. Units: ns, us, ms, s, m; a unit is required, no
 /// sign, no spaces, at most 9 fraction digits and no finer than 1ns; nullopt otherwise.

@@ -6,6 +6,7 @@
 
 #include "core/log.h"
 #include "mavbond_build_config.h"
+#include "endpoints/endpoint_types.h"
 
 namespace mavbond {
 namespace {
@@ -73,7 +74,7 @@ Daemon::~Daemon() {
 }
 
 Result<std::unique_ptr<Config>> Daemon::load(const DaemonOptions& opts) {
-    auto config = load_config(opts.config_path);
+    auto config = load_config(opts.config_path, endpoint_schemas());
     if (!config)
         return config.error();
     auto c = std::make_unique<Config>(std::move(config.value()));

@@ -104,7 +104,8 @@ private:
         return "[" + s.type_as_written + (s.name.empty() ? "" : " " + s.name) + "]";
     }
     bool boolean(const IniKey& k) const;
-    long integer(const IniKey& k, long min, long max) const;
+    /// 64 bits on every target: a 32-bit long cannot hold a baud rate's range (armhf).
+    int64_t integer(const IniKey& k, int64_t min, int64_t max) const;
     std::vector<uint32_t> id_list(const IniKey& k) const;
     std::string ipv4(const IniKey& k) const;
     std::string unique_name(const std::string& wanted, int line);
@@ -121,7 +122,7 @@ private:
     std::vector<Endpoint> endpoints_;
     std::vector<std::string> bonds_;
     std::set<std::string> names_;
-    long dedup_ms_ = 0;
+    int64_t dedup_ms_ = 0;
     bool report_stats_ = false;
 };
 
@@ -183,8 +184,8 @@ bool Importer::boolean(const IniKey& k) const {
     fail(k.line, k.name + ": '" + k.value + "' is not a boolean (true, false, 1 or 0)");
 }
 
-long Importer::integer(const IniKey& k, long min, long max) const {
-    long v = 0;
+int64_t Importer::integer(const IniKey& k, int64_t min, int64_t max) const {
+    int64_t v = 0;
     const char* end = k.value.data() + k.value.size();
     auto [ptr, ec] = std::from_chars(k.value.data(), end, v);
     if (k.value.empty() || ec != std::errc() || ptr != end || v < min || v > max)
@@ -231,7 +232,7 @@ std::string Importer::unique_name(const std::string& wanted, int line) {
 }
 
 void Importer::general(const IniSection& s) {
-    std::optional<long> tcp_port;
+    std::optional<int64_t> tcp_port;
     int tcp_line = s.line;
     std::string log_dir;
     int log_line = 0;
@@ -272,7 +273,7 @@ void Importer::general(const IniSection& s) {
             warn(k.line, "unknown key " + k.name + " in [General]", &top_comments_);
         }
     }
-    long port = tcp_port.value_or(kDefaultTcpServerPort);
+    int64_t port = tcp_port.value_or(kDefaultTcpServerPort);
     if (port != 0) {
         Endpoint ep;
         ep.name = unique_name("tcp-server", tcp_line);
@@ -396,7 +397,7 @@ void Importer::endpoint(const IniSection& s) {
             fail(mode_key.line, "Mode: '" + mode_key.value + "' is not Normal or Server");
         const IniKey& addr_key = require("address", "Address");
         std::string host = ipv4(addr_key);
-        long port = kDefaultUdpClientPort;
+        int64_t port = kDefaultUdpClientPort;
         if (const IniKey* k = take("port"))
             port = integer(*k, 1, 65535);
         else if (server)
@@ -415,7 +416,7 @@ void Importer::endpoint(const IniSection& s) {
                     "address: " + host + ":" + std::to_string(port)};
     } else {  // tcpendpoint
         const IniKey& addr_key = require("address", "Address");
-        long port = integer(require("port", "Port"), 1, 65535);
+        int64_t port = integer(require("port", "Port"), 1, 65535);
         std::string host = ipv4(addr_key);
         if (host.empty()) {
             translatable = false;
@@ -425,7 +426,7 @@ void Importer::endpoint(const IniSection& s) {
         }
         ep.lines = {"type: tcp", "mode: client", "address: " + host + ":" + std::to_string(port)};
         if (const IniKey* k = take("retrytimeout")) {
-            long secs = integer(*k, 0, 86400);
+            int64_t secs = integer(*k, 0, 86400);
             if (secs == 0)
                 warn(k->line, "RetryTimeout = 0: mavbond always reconnects (with backoff)",
                      &ep.comments);

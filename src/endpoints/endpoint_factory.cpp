@@ -1,32 +1,15 @@
 #include "endpoints/endpoint.h"
-#include "endpoints/tcp_endpoint.h"
-#include "endpoints/tlog_endpoint.h"
-#include "endpoints/uart_endpoint.h"
-#include "endpoints/udp_endpoint.h"
+#include "endpoints/endpoint_types.h"
 
 namespace mavbond {
 
 Result<Endpoint::Ptr> make_endpoint(const EndpointConfig& ep, const Config& config,
                                     EventLoop& loop, FrameSink& sink) {
-    auto upcast = [](auto result) -> Result<Endpoint::Ptr> {
-        if (!result)
-            return result.error();
-        return Endpoint::Ptr(std::move(result.value()));
-    };
-    auto policy = config.unknown_messages;
-    switch (ep.type) {
-    case EndpointType::Udp:
-        return ep.mode == EndpointMode::Server ? upcast(UdpServer::open(ep, loop, sink, policy))
-                                               : upcast(UdpClient::open(ep, loop, sink, policy));
-    case EndpointType::Tcp:
-        return ep.mode == EndpointMode::Server ? upcast(TcpServer::open(ep, loop, sink, policy))
-                                               : upcast(TcpClient::open(ep, loop, sink, policy));
-    case EndpointType::Uart:
-        return Endpoint::Ptr(UartEndpoint::open(ep, loop, sink, policy));
-    case EndpointType::Tlog:
-        return Endpoint::Ptr(TlogEndpoint::open(ep, loop, sink));
+    for (const EndpointType& t : endpoint_types()) {
+        if (&t.schema == ep.schema)
+            return t.open(ep, config, loop, sink);
     }
-    return make_error("unknown endpoint type");
+    return make_error("endpoint '" + ep.name + "': a type this daemon does not know");
 }
 
 Result<std::vector<Endpoint::Ptr>> make_endpoints(const Config& config, EventLoop& loop,

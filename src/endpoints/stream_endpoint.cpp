@@ -12,6 +12,20 @@
 
 namespace mavbond {
 
+std::optional<std::pair<const char*, std::string>> reconnect_bounds(const EndpointOptions& o) {
+    Duration min = o.duration("reconnect_min"), max = o.duration("reconnect_max");
+    if (max >= min)
+        return std::nullopt;
+    // The one written is at fault (reconnect_min above the default maximum).
+    return std::pair{o.given("reconnect_max") ? "reconnect_max" : "reconnect_min",
+                     "'reconnect_max' (" + format_duration(max) +
+                         ") must not be below 'reconnect_min' (" + format_duration(min) + ")"};
+}
+
+Backoff reconnect_backoff(const EndpointConfig& config) {
+    return Backoff(config.options.duration("reconnect_min"), config.options.duration("reconnect_max"));
+}
+
 StreamEndpoint::StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
                                FrameSink& sink, UnknownIdPolicy policy, const Endpoint* parent)
     : Endpoint(config, std::move(name), TxQueue::Mode::Stream, parent), loop_(loop), sink_(sink),

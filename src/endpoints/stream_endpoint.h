@@ -19,10 +19,23 @@ public:
         return d;
     }
     void reset() { next_ = min_; }
+    Duration max() const { return max_; }
 
 private:
     Duration min_, max_, next_;
 };
+
+// The options of an endpoint that reconnects (a TCP client, a UART), and their rule.
+inline constexpr EndpointOption kReconnectMin = {
+    "reconnect_min", OptionKind::Time, "500ms",
+    "The first wait before trying again after a failure; each failure doubles it, up to "
+    "reconnect_max."};
+inline constexpr EndpointOption kReconnectMax = {
+    "reconnect_max", OptionKind::Time, "5s",
+    "The longest wait between two attempts; not below reconnect_min."};
+std::optional<std::pair<const char*, std::string>> reconnect_bounds(const EndpointOptions& o);
+/// The backoff reconnect_min and reconnect_max of `config` give.
+Backoff reconnect_backoff(const EndpointConfig& config);
 
 class StreamEndpoint : public Endpoint {
 public:

@@ -12,6 +12,16 @@
 namespace mavbond {
 namespace {
 
+constexpr EndpointOption kTcpServerOptions[] = {
+    {"address", OptionKind::Address, nullptr, "Where to listen (0.0.0.0:5760).", true},
+};
+
+constexpr EndpointOption kTcpClientOptions[] = {
+    {"address", OptionKind::Address, nullptr, "Where to connect (127.0.0.1:5760).", true},
+    kReconnectMin,
+    kReconnectMax,
+};
+
 void set_nodelay(int fd) {
     // Telemetry is latency-bound; frames are coalesced by the transmit queue already.
     int one = 1;
@@ -19,6 +29,15 @@ void set_nodelay(int fd) {
 }
 
 }  // namespace
+
+const EndpointSchema kTcpServerType = {"tcp", "server",
+                                       "A TCP listener; each client it accepts is a link of its "
+                                       "own.",
+                                       kTcpServerOptions};
+const EndpointSchema kTcpClientType = {"tcp", "client",
+                                       "A TCP connection, made again with backoff when it "
+                                       "cannot be made or is lost.",
+                                       kTcpClientOptions, true, reconnect_bounds};
 
 // --- TcpConnection -------------------------------------------------------------------------
 
@@ -38,7 +57,8 @@ void TcpConnection::on_disconnect(const std::string& reason) {
 
 Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config, EventLoop& loop,
                                                    FrameSink& sink, UnknownIdPolicy policy) {
-    auto bound = bind_socket(SOCK_STREAM, config.host, config.port);
+    auto bound = bind_socket(SOCK_STREAM, config.options.text("address"),
+                             config.options.port("address"));
     if (!bound)
         return bound.error();
     if (listen(bound->fd.get(), 16) < 0)
@@ -117,7 +137,7 @@ void TcpServer::drop_client(TcpConnection& client) {
 
 Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config, EventLoop& loop,
                                                    FrameSink& sink, UnknownIdPolicy policy) {
-    auto addr = resolve_ipv4(config.host, config.port);
+    auto addr = resolve_ipv4(config.options.text("address"), config.options.port("address"));
     if (!addr)
         return addr.error();
     std::unique_ptr<TcpClient> client(new TcpClient(config, loop, sink, policy, *addr));
@@ -129,7 +149,7 @@ Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config,
 TcpClient::TcpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, const sockaddr_in& addr)
     : StreamEndpoint(config, config.name, loop, sink, policy), addr_(addr),
-      backoff_(config.reconnect_min, config.reconnect_max) {}
+      backoff_(reconnect_backoff(config)) {}
 
 TcpClient::~TcpClient() { sink_.detach(*this); }
 
@@ -183,7 +203,7 @@ void TcpClient::retry_later(const std::string& reason) {
     if (!failing_logged_) {
         log_warning("[tcp:%s] cannot connect to %s: %s; retrying with backoff up to %.1fs",
                     name().c_str(), to_string(addr_).c_str(), reason.c_str(),
-                    std::chrono::duration<double>(config().reconnect_max).count());
+                    std::chrono::duration<double>(backoff_.max()).count());
         failing_logged_ = true;
     }
     retry_timer_ = loop_.schedule(delay, [this] {

@@ -11,6 +11,9 @@
 
 namespace mavbond {
 
+extern const EndpointSchema kTcpServerType;
+extern const EndpointSchema kTcpClientType;
+
 class TcpServer;
 
 /// One accepted client of a TcpServer.

@@ -4,8 +4,35 @@
 #include <ctime>
 #include <thread>
 
-
 namespace mavbond {
+namespace {
+
+constexpr EndpointOption kTlogOptions[] = {
+    {"directory", OptionKind::Text, nullptr,
+     "Where the files go. Created with its parents until it has existed once; a directory that "
+     "vanishes later is an error, not recreated.", true},
+    {"max_size", OptionKind::Size, "0",
+     "A new file before the current one passes this many bytes (64MiB, 1GiB; at least 4KiB); "
+     "0: no limit.", false, 4096},
+};
+
+}  // namespace
+
+// A log only takes what is routed to it: nothing comes in, it is no link of a bond.
+const EndpointSchema kTlogType = {
+    "tlog", nullptr,
+    "A flight log: every routed frame, targeted frames included, goes to .tlog files (each "
+    "record an 8-byte big-endian timestamp in microseconds since the Unix epoch, then the frame, "
+    "as MAVProxy and QGroundControl write them), named from the wall clock in UTC "
+    "(2026-11-21_14-03-07.tlog; _001 and up when taken, never overwritten). A new file at each "
+    "start, before max_size would be passed, and when an autopilot (component 1) reboots: its "
+    "SYSTEM_TIME.time_boot_ms goes back by more than 5 s. A writer thread does the disk work; "
+    "when it falls behind, frames wait in tx_queue and past it are dropped and counted "
+    "(tx_dropped). Disk errors drop the frames they hit, counted, and are logged once per change "
+    "of state; routing goes on. Besides its own options it takes only name, type, tx_queue, "
+    "allow_out and block_out.",
+    kTlogOptions, false};
+
 namespace {
 
 constexpr Duration kBacklogRetry = milliseconds(10);
@@ -34,7 +61,8 @@ std::unique_ptr<TlogEndpoint> TlogEndpoint::open(const EndpointConfig& config, E
 TlogEndpoint::TlogEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink)
     : Endpoint(config, config.name, TxQueue::Mode::Datagram, nullptr, Role::Recorder),
       loop_(loop), sink_(sink),
-      writer_(config.name, config.directory, config.max_size, kRingBytes) {}
+      writer_(config.name, config.options.text("directory"), config.options.number("max_size"),
+              kRingBytes) {}
 
 TlogEndpoint::~TlogEndpoint() {
     sink_.detach(*this);

@@ -17,6 +17,8 @@
 
 namespace mavbond {
 
+extern const EndpointSchema kTlogType;
+
 class TlogEndpoint : public Endpoint {
 public:
     static constexpr size_t kRingBytes = 1 << 20;

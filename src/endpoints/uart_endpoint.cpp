@@ -13,6 +13,26 @@
 
 namespace mavbond {
 
+namespace {
+
+constexpr EndpointOption kUartOptions[] = {
+    {"device", OptionKind::Text, nullptr,
+     "The serial device, for example /dev/ttyAMA0 or /dev/serial/by-id/... (the names that stay "
+     "the same across reboots).", true},
+    {"baud", OptionKind::Count, "57600", "Any rate, standard or not (921600, 1500000)."},
+    {"flow_control", OptionKind::Flag, "false", "RTS/CTS hardware flow control."},
+    kReconnectMin,
+    kReconnectMax,
+};
+
+}  // namespace
+
+const EndpointSchema kUartType = {"uart", nullptr,
+                                  "A serial port (an autopilot, a radio), raw. A device that is "
+                                  "missing at start or unplugged later is opened again with "
+                                  "backoff; the daemon keeps running.",
+                                  kUartOptions, true, reconnect_bounds};
+
 Result<UniqueFd> open_serial(const std::string& device, uint32_t baud, bool flow_control) {
     UniqueFd fd(::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC));
     if (!fd)
@@ -53,12 +73,14 @@ std::unique_ptr<UartEndpoint> UartEndpoint::open(const EndpointConfig& config, E
 UartEndpoint::UartEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                            UnknownIdPolicy policy)
     : StreamEndpoint(config, config.name, loop, sink, policy),
-      backoff_(config.reconnect_min, config.reconnect_max) {}
+      backoff_(reconnect_backoff(config)) {}
 
 UartEndpoint::~UartEndpoint() { sink_.detach(*this); }
 
 void UartEndpoint::try_open() {
-    auto fd = open_serial(config().device, config().baud, config().flow_control);
+    const EndpointOptions& o = config().options;
+    auto fd = open_serial(o.text("device"), static_cast<uint32_t>(o.number("baud")),
+                          o.flag("flow_control"));
     if (!fd) {
         retry_later(fd.error().message);
         return;
@@ -69,14 +91,14 @@ void UartEndpoint::try_open() {
     }
     backoff_.reset();
     failing_logged_ = false;
-    log_notice("[uart:%s] %s open at %u baud%s", name().c_str(), config().device.c_str(),
-               config().baud, config().flow_control ? " with RTS/CTS" : "");
+    log_notice("[uart:%s] %s open at %u baud%s", name().c_str(), o.text("device").c_str(),
+               static_cast<unsigned>(o.number("baud")), o.flag("flow_control") ? " with RTS/CTS" : "");
 }
 
 void UartEndpoint::retry_later(const std::string& reason) {
     if (!failing_logged_) {
         log_warning("[uart:%s] %s; retrying with backoff up to %.1fs", name().c_str(),
-                    reason.c_str(), std::chrono::duration<double>(config().reconnect_max).count());
+                    reason.c_str(), std::chrono::duration<double>(backoff_.max()).count());
         failing_logged_ = true;
     }
     retry_timer_ = loop_.schedule(backoff_.next(), [this] {
@@ -86,7 +108,8 @@ void UartEndpoint::retry_later(const std::string& reason) {
 }
 
 void UartEndpoint::on_disconnect(const std::string& reason) {
-    log_warning("[uart:%s] %s lost: %s", name().c_str(), config().device.c_str(), reason.c_str());
+    log_warning("[uart:%s] %s lost: %s", name().c_str(), config().options.text("device").c_str(),
+                reason.c_str());
     failing_logged_ = true;
     retry_later(reason);
 }

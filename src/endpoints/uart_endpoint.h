@@ -7,6 +7,8 @@
 
 namespace mavbond {
 
+extern const EndpointSchema kUartType;
+
 class UartEndpoint : public StreamEndpoint {
 public:
     static std::unique_ptr<UartEndpoint> open(const EndpointConfig& config, EventLoop& loop,

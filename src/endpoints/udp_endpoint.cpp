@@ -9,6 +9,43 @@
 
 namespace mavbond {
 
+namespace {
+
+// A UDP socket's receive buffer, in the bytes the kernel counts: what a link's backlog may fill
+// while the daemon does not read (a stalled companion computer). The kernel counts about 830
+// bytes per small datagram and 1,280 per largest frame (measured on loopback), so a 1 s stall
+// at 10,000 datagrams/s takes 8.3 to 12.8 MB; 16 MiB holds it. It costs memory only while full.
+constexpr EndpointOption kRxBuffer = {
+    "rx_buffer", OptionKind::Size, "16MiB",
+    "The socket's receive buffer, in the bytes the kernel counts (about 830 per small "
+    "datagram): what a link's backlog may fill while the daemon does not read. The default "
+    "holds a 1 s stall at 10,000 datagrams/s. Above net.core.rmem_max it needs root or the "
+    "package's sysctl setting (a warning says when the kernel gives less). Datagrams the "
+    "kernel drops anyway are counted per endpoint (rx_overflows).",
+    false, 64u << 10, 1u << 30};
+
+constexpr EndpointOption kUdpServerOptions[] = {
+    {"address", OptionKind::Address, nullptr,
+     "Where to listen (0.0.0.0:14550, 127.0.0.1:14550, localhost:14550).", true},
+    {"peer_timeout", OptionKind::Time, "30s", "A peer silent this long is forgotten."},
+    kRxBuffer,
+};
+
+constexpr EndpointOption kUdpClientOptions[] = {
+    {"address", OptionKind::Address, nullptr,
+     "Where to send (192.0.2.10:14550); replies are taken from there only.", true},
+    kRxBuffer,
+};
+
+}  // namespace
+
+const EndpointSchema kUdpServerType = {"udp", "server",
+                                       "A UDP socket bound to an address. Peers are learned from "
+                                       "what they send; each is a link of its own.",
+                                       kUdpServerOptions};
+const EndpointSchema kUdpClientType = {"udp", "client", "A UDP socket sending to one address.",
+                                       kUdpClientOptions};
+
 // --- DatagramBatch -------------------------------------------------------------------------
 
 DatagramBatch::DatagramBatch() : arena_(std::make_unique_for_overwrite<uint8_t[]>(kCount * kSize)) {
@@ -96,7 +133,9 @@ void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 
 Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
                                                    FrameSink& sink, UnknownIdPolicy policy) {
-    auto bound = bind_socket(SOCK_DGRAM, config.host, config.port, config.rx_buffer, config.name);
+    const EndpointOptions& o = config.options;
+    auto bound = bind_socket(SOCK_DGRAM, o.text("address"), o.port("address"),
+                             o.number("rx_buffer"), config.name);
     if (!bound)
         return bound.error();
     std::unique_ptr<UdpServer> server(
@@ -107,7 +146,7 @@ Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config,
         return w.error();
     server->watch_ = std::move(w.value());
     sink.attach(server->input_);
-    auto period = std::clamp<Duration>(config.peer_timeout / 4, milliseconds(100), seconds(5));
+    auto period = std::clamp<Duration>(o.duration("peer_timeout") / 4, milliseconds(100), seconds(5));
     server->expiry_timer_ = loop.schedule(period, [s = server.get(), period] {
         s->forget_silent_peers();
         return period;
@@ -165,7 +204,7 @@ UdpPeer* UdpServer::peer_for(const sockaddr_in& addr, TimePoint now) {
 void UdpServer::forget_silent_peers() {
     TimePoint now = loop_.now();
     auto silent = [&](const std::unique_ptr<UdpPeer>& peer) {
-        if (now - peer->last_heard() <= config().peer_timeout)
+        if (now - peer->last_heard() <= config().options.duration("peer_timeout"))
             return false;
         log_info("[udp:%s] peer %s silent for %.1fs: forgotten", name().c_str(),
                  to_string(peer->address()).c_str(),
@@ -222,10 +261,11 @@ void UdpServer::on_events(uint32_t events) {
 
 Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config, EventLoop& loop,
                                                    FrameSink& sink, UnknownIdPolicy policy) {
-    auto addr = resolve_ipv4(config.host, config.port);
+    const EndpointOptions& o = config.options;
+    auto addr = resolve_ipv4(o.text("address"), o.port("address"));
     if (!addr)
         return addr.error();
-    auto fd = make_socket(SOCK_DGRAM, config.rx_buffer, config.name);
+    auto fd = make_socket(SOCK_DGRAM, o.number("rx_buffer"), config.name);
     if (!fd)
         return fd.error();
     // Connected: the kernel delivers only the peer's replies, and send needs no address.

@@ -16,6 +16,9 @@
 
 namespace mavbond {
 
+extern const EndpointSchema kUdpServerType;
+extern const EndpointSchema kUdpClientType;
+
 /// A batch of datagrams received with one recvmmsg, each with the time the kernel received it
 /// (SO_TIMESTAMPNS). Every slot takes the largest
 /// datagram UDP can carry (a bridge may pack many frames into one), yet costs memory only for

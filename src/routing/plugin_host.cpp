@@ -28,7 +28,7 @@ const char* type_name(mavbond_option_type t) {
 
 /// Converts YAML text to a typed value; false when it does not fit the type.
 bool convert(mavbond_option_type type, const std::string& text, const std::vector<std::string>& items,
-             bool is_sequence, OptionValue& out) {
+             bool is_sequence, PluginOptionValue& out) {
     out.type = type;
     if (type == MAVBOND_OPT_STRINGS) {
         if (!is_sequence)
@@ -102,7 +102,7 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
             return make_error(where(opt.mark) + ": filter '" + entry.plugin + "': unknown option '" +
                               opt.key + "' (it takes: " + (known.empty() ? "none" : known) + ")");
         }
-        OptionValue v;
+        PluginOptionValue v;
         v.mark = opt.value_mark;
         v.item_marks = opt.item_marks;
         if (!convert(d->type, opt.value, opt.items, opt.is_sequence, v))
@@ -113,7 +113,7 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
     for (const mavbond_option* o = declared; o && o->key; o++) {
         if (!o->default_value || cfg->values_.count(o->key))
             continue;
-        OptionValue v;
+        PluginOptionValue v;
         v.mark = entry.mark;
         bool seq = o->type == MAVBOND_OPT_STRINGS;
         if (!convert(o->type, o->default_value, {}, seq, v))
@@ -145,20 +145,20 @@ Result<std::unique_ptr<PluginConfig>> PluginConfig::create(const FilterConfig& e
     return cfg;
 }
 
-const OptionValue* PluginConfig::find(const char* key) const {
+const PluginOptionValue* PluginConfig::find(const char* key) const {
     auto it = values_.find(key);
     return it == values_.end() ? nullptr : &it->second;
 }
 
 std::string PluginConfig::error_at(const char* key, const std::string& message) const {
-    const OptionValue* v = find(key);
+    const PluginOptionValue* v = find(key);
     return where(v ? v->mark : entry_.mark) + ": filter '" + entry_.plugin + "': option '" + key +
            "': " + message;
 }
 
 std::string PluginConfig::item_error_at(const char* key, size_t index,
                                        const std::string& message) const {
-    const OptionValue* v = find(key);
+    const PluginOptionValue* v = find(key);
     if (!v || index >= v->item_marks.size())
         return error_at(key, message);
     return where(v->item_marks[index]) + ": filter '" + entry_.plugin + "': option '" + key +
@@ -221,10 +221,10 @@ struct HostApiImpl {
     static int bond_state(mavbond_host* h, uint32_t bond_id, mavbond_bond_state* out) {
         return out ? h->services->bond_state(bond_id, out) : -EINVAL;
     }
-    static const OptionValue* value(const mavbond_config* c, const char* key, mavbond_option_type t) {
+    static const PluginOptionValue* value(const mavbond_config* c, const char* key, mavbond_option_type t) {
         if (!c || !key)
             return nullptr;
-        const OptionValue* v = c->config->find(key);
+        const PluginOptionValue* v = c->config->find(key);
         return v && v->type == t ? v : nullptr;
     }
     static int cfg_bool(const mavbond_config* c, const char* key, int* out) {

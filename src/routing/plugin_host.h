@@ -34,7 +34,7 @@ public:
 };
 
 /// One option value after validation against the plugin's declared type.
-struct OptionValue {
+struct PluginOptionValue {
     mavbond_option_type type;
     bool b = false;
     int64_t i = 0;
@@ -55,7 +55,7 @@ public:
     static Result<std::unique_ptr<PluginConfig>> create(const FilterConfig& entry,
                                                         const mavbond_option* declared,
                                                         const Config& config);
-    const OptionValue* find(const char* key) const;
+    const PluginOptionValue* find(const char* key) const;
     const FilterConfig& entry() const { return entry_; }
     /// "file:line:column: filter 'NAME': option 'KEY': message" (the entry's mark if absent).
     std::string error_at(const char* key, const std::string& message) const;
@@ -76,7 +76,7 @@ public:
 private:
     explicit PluginConfig(const FilterConfig& entry) : entry_(entry) {}
     const FilterConfig& entry_;
-    std::map<std::string, OptionValue, std::less<>> values_;
+    std::map<std::string, PluginOptionValue, std::less<>> values_;
     std::vector<const char*> bond_ptrs_, endpoint_ptrs_;
     std::map<std::string, std::vector<std::string>, std::less<>> members_;  // bond -> endpoints
     std::map<std::string, std::vector<const char*>, std::less<>> member_ptrs_;

@@ -10,6 +10,7 @@
 #include "routing/filter_chain.h"
 #include "routing/plugin_loader.h"
 #include "routing/router.h"
+#include "endpoints/endpoint_types.h"
 
 namespace mavbond {
 namespace {
@@ -102,7 +103,7 @@ TEST(PluginConfig, NamesOutsideAToZDigitsUnderscoreAreConfigErrors) {
     for (const char* name : {"../evil", "/usr/lib/evil", "a/b", "..", "dedup.so", "De-dup", "x y"}) {
         auto cfg = parse_config(std::string("endpoints:\n"
                                             "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9}\n"
-                                            "filters:\n  - plugin: \"") + name + "\"\n", "t.yaml");
+                                            "filters:\n  - plugin: \"") + name + "\"\n", "t.yaml", endpoint_schemas());
         ASSERT_FALSE(cfg.has_value()) << name;
         EXPECT_EQ(0u, cfg.error().message.find("t.yaml:4:13: filter #1: invalid plugin name '" +
                                               std::string(name) + "'"))
@@ -119,7 +120,7 @@ protected:
                                 "  - {name: a, type: udp, mode: server, address: 127.0.0.1:9" +
                                     std::string(bonds.empty() ? "" : ", bond: b") + "}\n" + bonds +
                                     "filters:\n" + filters,
-                                "t.yaml");
+                                "t.yaml", endpoint_schemas());
         EXPECT_TRUE(cfg.has_value()) << cfg.error().message;
         config_ = std::make_unique<Config>(std::move(cfg.value()));
         router_ = std::make_unique<Router>(*loop_, seconds(10));

@@ -18,6 +18,7 @@
 #include "config/config.h"
 #include "fuzz_check.h"
 #include "mavlink/frame.h"
+#include "endpoints/endpoint_types.h"
 
 namespace mavbond::fuzz {
 namespace {
@@ -121,19 +122,50 @@ private:
         check_name(ep.name, "endpoint");
         check_mark(ep.mark, "endpoint " + ep.name);
         const char* name = ep.name.c_str();
-        if (ep.type == EndpointType::Uart) {
-            FUZZ_CHECK(!ep.device.empty() && ep.baud > 0, "uart '%s': device '%s' baud %u", name,
-                       ep.device.c_str(), ep.baud);
-        } else if (ep.type == EndpointType::Tlog) {
-            FUZZ_CHECK(!ep.directory.empty(), "tlog '%s': no directory", name);
-        } else {
-            in_addr addr{};
-            FUZZ_CHECK(inet_pton(AF_INET, ep.host.c_str(), &addr) == 1 && ep.port != 0,
-                       "endpoint '%s': address '%s' port %u", name, ep.host.c_str(), ep.port);
+        // Every option of its type's table as its kind promises it; an option with neither
+        // a default nor a value must have been optional.
+        FUZZ_CHECK(ep.schema != nullptr, "endpoint '%s' without a type", name);
+        for (const EndpointOption& o : ep.schema->options) {
+            if (!ep.options.has(o.key)) {
+                FUZZ_CHECK(!o.required && !o.default_value, "endpoint '%s': '%s' missing", name,
+                           o.key);
+                continue;
+            }
+            switch (o.kind) {
+            case OptionKind::Address: {
+                in_addr addr{};
+                FUZZ_CHECK(inet_pton(AF_INET, ep.options.text(o.key).c_str(), &addr) == 1 &&
+                               ep.options.port(o.key) != 0,
+                           "endpoint '%s': address '%s' port %u", name,
+                           ep.options.text(o.key).c_str(), ep.options.port(o.key));
+                break;
+            }
+            case OptionKind::Time:
+                FUZZ_CHECK(ep.options.duration(o.key).count() > 0, "endpoint '%s': '%s' <= 0",
+                           name, o.key);
+                break;
+            case OptionKind::Count:
+                FUZZ_CHECK(ep.options.number(o.key) > 0 && ep.options.number(o.key) <= UINT32_MAX,
+                           "endpoint '%s': '%s' %llu", name, o.key,
+                           static_cast<unsigned long long>(ep.options.number(o.key)));
+                break;
+            case OptionKind::Size: {
+                uint64_t n = ep.options.number(o.key);
+                bool is_default = o.default_value && n == 0;
+                FUZZ_CHECK(is_default || (n >= o.min && (o.max == 0 || n <= o.max)),
+                           "endpoint '%s': '%s' %llu", name, o.key, static_cast<unsigned long long>(n));
+                break;
+            }
+            case OptionKind::Text:
+                FUZZ_CHECK(!ep.options.text(o.key).empty(), "endpoint '%s': '%s' empty", name,
+                           o.key);
+                break;
+            case OptionKind::Flag:
+                break;
+            }
         }
-        FUZZ_CHECK(ep.peer_timeout.count() > 0 && ep.reconnect_min.count() > 0 &&
-                       ep.reconnect_min <= ep.reconnect_max,
-                   "endpoint '%s': timeouts", name);
+        FUZZ_CHECK(!ep.schema->check || !ep.schema->check(ep.options),
+                   "endpoint '%s': its type's rule is broken", name);
         FUZZ_CHECK(ep.tx_queue_bytes >= kMaxFrameLen && ep.tx_queue_bytes <= 64u * 1024 * 1024,
                    "endpoint '%s': tx_queue %zu", name, ep.tx_queue_bytes);
         check_ids(ep.filter_in, ep.name);
@@ -180,8 +212,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const std::string text(reinterpret_cast<const char*>(data), size);
     const ConfigChecker checker(text);
 
-    const Result<Config> config = parse_config(text, kName);
-    const Result<Config> again = parse_config(text, kName);
+    const Result<Config> config = parse_config(text, kName, endpoint_schemas());
+    const Result<Config> again = parse_config(text, kName, endpoint_schemas());
     FUZZ_CHECK(config.has_value() == again.has_value(), "loaded twice, one failed");
     if (!config.has_value()) {
         checker.check_error(config.error().message);

@@ -430,8 +430,13 @@ def loader_keys(source: str) -> dict[str, set[str]]:
         found |= set(re.findall(r'\be\.name == "([^"]*)"', body))
         if found:
             section = "top" if func == "parse" else func.removeprefix("parse_")
+            # parse_endpoint_type reads an endpoint's type and mode
+            section = "endpoint" if section.startswith("endpoint") else section
             sections.setdefault(section, set()).update(found)
     assert not re.search(r'view\.find\("', parts[0]), "keys read outside Parser:: functions"
+    # An endpoint type's own keys are in its table (src/endpoints), which the loader reads.
+    for src in sorted((REPO / "src" / "endpoints").glob("*.[ch]*")):
+        sections["endpoint"] |= set(re.findall(r'\{\s*"(\w+)",\s*OptionKind::', src.read_text()))
     return sections
 
 

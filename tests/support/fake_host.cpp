@@ -6,6 +6,7 @@
 
 #include "mavlink/frame.h"
 #include "mavlink/message_table.h"
+#include "endpoints/endpoint_types.h"
 
 namespace mavbond {
 
@@ -92,7 +93,7 @@ void* FakeHost::create(const mavbond_plugin_descriptor* plugin, const std::strin
     std::istringstream lines(options);
     for (std::string line; std::getline(lines, line);)
         yaml << "    " << line << "\n";
-    auto config = parse_config(yaml.str(), "test.yaml");
+    auto config = parse_config(yaml.str(), "test.yaml", endpoint_schemas());
     if (!config) {
         last_error_ = config.error().message;
         return nullptr;

@@ -1,6 +1,7 @@
 // Config loader: the shipped files load, valid YAML maps to the right values, and every kind of
 // malformed config is refused with its exact "file:line:column: message".
 #include "config/config.h"
+#include "endpoints/endpoint_types.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -22,7 +23,7 @@ Result<Config> parse(const char* text) {
     std::string s = text;
     if (!s.empty() && s.front() == '\n')
         s.erase(0, 1);
-    return parse_config(s, "t.yaml");
+    return parse_config(s, "t.yaml", endpoint_schemas());
 }
 
 std::string source_root() {
@@ -37,7 +38,7 @@ class ShippedConfig : public testing::TestWithParam<const char*> {};
 TEST_P(ShippedConfig, Loads) {
     ASSERT_FALSE(source_root().empty()) << "MAVBOND_SOURCE_ROOT is not set (run via meson test)";
     std::string path = source_root() + "/" + GetParam();
-    auto config = load_config(path);
+    auto config = load_config(path, endpoint_schemas());
     ASSERT_TRUE(config.has_value()) << config.error().message;
     EXPECT_EQ(path, config->path);
     EXPECT_FALSE(config->endpoints.empty());
@@ -49,42 +50,42 @@ INSTANTIATE_TEST_SUITE_P(Files, ShippedConfig,
                                          "conf/examples/link-events.yaml"));
 
 TEST(ShippedConfig, DefaultIsHarmless) {
-    auto config = load_config(source_root() + "/conf/mavbond.yaml");
+    auto config = load_config(source_root() + "/conf/mavbond.yaml", endpoint_schemas());
     ASSERT_TRUE(config.has_value()) << config.error().message;
     ASSERT_EQ(2u, config->endpoints.size());
     const auto& gcs = config->endpoints[0];
     EXPECT_EQ("gcs", gcs.name);
-    EXPECT_EQ(EndpointType::Udp, gcs.type);
-    EXPECT_EQ(EndpointMode::Server, gcs.mode);
-    EXPECT_EQ("0.0.0.0", gcs.host);
-    EXPECT_EQ(14550, gcs.port);
+    EXPECT_STREQ("udp", gcs.schema->type);
+    EXPECT_STREQ("server", gcs.schema->mode);
+    EXPECT_EQ("0.0.0.0", gcs.options.text("address"));
+    EXPECT_EQ(14550, gcs.options.port("address"));
     const auto& autopilot = config->endpoints[1];
-    EXPECT_EQ(EndpointType::Udp, autopilot.type);
-    EXPECT_EQ(EndpointMode::Server, autopilot.mode);
-    EXPECT_EQ("127.0.0.1", autopilot.host);
-    EXPECT_EQ(14540, autopilot.port);
+    EXPECT_STREQ("udp", autopilot.schema->type);
+    EXPECT_STREQ("server", autopilot.schema->mode);
+    EXPECT_EQ("127.0.0.1", autopilot.options.text("address"));
+    EXPECT_EQ(14540, autopilot.options.port("address"));
     // No serial port, no bond, no plugin to load on a fresh install.
     for (const auto& ep : config->endpoints)
-        EXPECT_NE(EndpointType::Uart, ep.type) << ep.name;
+        EXPECT_STRNE("uart", ep.schema->type) << ep.name;
     EXPECT_TRUE(config->bonds.empty());
     EXPECT_TRUE(config->filters.empty());
 }
 
 TEST(ShippedConfig, AirSide) {
-    auto config = load_config(source_root() + "/conf/examples/air-side.yaml");
+    auto config = load_config(source_root() + "/conf/examples/air-side.yaml", endpoint_schemas());
     ASSERT_TRUE(config.has_value()) << config.error().message;
     ASSERT_EQ(3u, config->endpoints.size());
     const auto& fc = config->endpoints[0];
-    EXPECT_EQ(EndpointType::Uart, fc.type);
-    EXPECT_EQ("/dev/ttyAMA0", fc.device);
-    EXPECT_EQ(921600u, fc.baud);
-    EXPECT_TRUE(fc.flow_control);
+    EXPECT_STREQ("uart", fc.schema->type);
+    EXPECT_EQ("/dev/ttyAMA0", fc.options.text("device"));
+    EXPECT_EQ(921600u, fc.options.number("baud"));
+    EXPECT_TRUE(fc.options.flag("flow_control"));
     EXPECT_EQ("", fc.bond);
-    EXPECT_EQ(EndpointType::Uart, config->endpoints[1].type);
-    EXPECT_EQ(57600u, config->endpoints[1].baud);
+    EXPECT_STREQ("uart", config->endpoints[1].schema->type);
+    EXPECT_EQ(57600u, config->endpoints[1].options.number("baud"));
     EXPECT_EQ("vehicle", config->endpoints[1].bond);
-    EXPECT_EQ(EndpointType::Udp, config->endpoints[2].type);
-    EXPECT_EQ(EndpointMode::Client, config->endpoints[2].mode);
+    EXPECT_STREQ("udp", config->endpoints[2].schema->type);
+    EXPECT_STREQ("client", config->endpoints[2].schema->mode);
     EXPECT_EQ("vehicle", config->endpoints[2].bond);
     ASSERT_EQ(1u, config->bonds.size());
     EXPECT_EQ("vehicle", config->bonds[0].name);
@@ -95,17 +96,17 @@ TEST(ShippedConfig, AirSide) {
 }
 
 TEST(ShippedConfig, GroundSide) {
-    auto config = load_config(source_root() + "/conf/examples/ground-side.yaml");
+    auto config = load_config(source_root() + "/conf/examples/ground-side.yaml", endpoint_schemas());
     ASSERT_TRUE(config.has_value()) << config.error().message;
     int members = 0;
     bool udp_server_14550 = false;
     bool tcp_server_5760 = false;
     for (const auto& ep : config->endpoints) {
         members += ep.bond == "vehicle";
-        udp_server_14550 |= ep.type == EndpointType::Udp && ep.mode == EndpointMode::Server &&
-                            ep.port == 14550;
-        tcp_server_5760 |= ep.type == EndpointType::Tcp && ep.mode == EndpointMode::Server &&
-                           ep.port == 5760;
+        udp_server_14550 |= std::string_view(ep.schema->type) == "udp" && std::string_view(ep.schema->mode) == "server" &&
+                            ep.options.port("address") == 14550;
+        tcp_server_5760 |= std::string_view(ep.schema->type) == "tcp" && std::string_view(ep.schema->mode) == "server" &&
+                           ep.options.port("address") == 5760;
     }
     EXPECT_EQ(2, members);
     EXPECT_TRUE(udp_server_14550);
@@ -129,7 +130,7 @@ endpoints:
     EXPECT_EQ("", config->status_socket);
     ASSERT_EQ(1u, config->endpoints.size());
     const auto& ep = config->endpoints[0];
-    EXPECT_EQ(seconds(30), ep.peer_timeout);
+    EXPECT_EQ(seconds(30), ep.options.duration("peer_timeout"));
     EXPECT_EQ(16384u, ep.tx_queue_bytes);
     EXPECT_TRUE(ep.filter_in.allow.empty());
     EXPECT_TRUE(ep.filter_out.block.empty());
@@ -201,12 +202,12 @@ bonds:
     ASSERT_EQ(4u, config->endpoints.size());
     const auto& fc = config->endpoints[0];
     EXPECT_EQ("fc", fc.name);
-    EXPECT_EQ(EndpointType::Uart, fc.type);
-    EXPECT_EQ("/dev/ttyAMA0", fc.device);
-    EXPECT_EQ(1500000u, fc.baud);
-    EXPECT_TRUE(fc.flow_control);
-    EXPECT_EQ(milliseconds(250), fc.reconnect_min);
-    EXPECT_EQ(seconds(2), fc.reconnect_max);
+    EXPECT_STREQ("uart", fc.schema->type);
+    EXPECT_EQ("/dev/ttyAMA0", fc.options.text("device"));
+    EXPECT_EQ(1500000u, fc.options.number("baud"));
+    EXPECT_TRUE(fc.options.flag("flow_control"));
+    EXPECT_EQ(milliseconds(250), fc.options.duration("reconnect_min"));
+    EXPECT_EQ(seconds(2), fc.options.duration("reconnect_max"));
     EXPECT_EQ(16384u, fc.tx_queue_bytes);
     EXPECT_EQ((std::vector<uint32_t>{0, 33, 16777215}), fc.filter_in.allow);
     EXPECT_EQ((std::vector<uint32_t>{30}), fc.filter_in.block);
@@ -216,27 +217,27 @@ bonds:
     EXPECT_EQ(5, fc.mark.column);
 
     const auto& radio = config->endpoints[1];
-    EXPECT_EQ(EndpointType::Tcp, radio.type);
-    EXPECT_EQ(EndpointMode::Client, radio.mode);
-    EXPECT_EQ("127.0.0.1", radio.host);  // localhost is stored as the loopback address
-    EXPECT_EQ(5760, radio.port);
-    EXPECT_EQ(microseconds(100), radio.reconnect_min);
-    EXPECT_EQ(microseconds(100), radio.reconnect_max);
+    EXPECT_STREQ("tcp", radio.schema->type);
+    EXPECT_STREQ("client", radio.schema->mode);
+    EXPECT_EQ("127.0.0.1", radio.options.text("address"));  // localhost is stored as the loopback address
+    EXPECT_EQ(5760, radio.options.port("address"));
+    EXPECT_EQ(microseconds(100), radio.options.duration("reconnect_min"));
+    EXPECT_EQ(microseconds(100), radio.options.duration("reconnect_max"));
     EXPECT_EQ(280u, radio.tx_queue_bytes);
     EXPECT_EQ("vehicle", radio.bond);
 
     const auto& lte = config->endpoints[2];
-    EXPECT_EQ(EndpointType::Udp, lte.type);
-    EXPECT_EQ(EndpointMode::Client, lte.mode);
-    EXPECT_EQ("192.0.2.10", lte.host);
-    EXPECT_EQ(14560, lte.port);
+    EXPECT_STREQ("udp", lte.schema->type);
+    EXPECT_STREQ("client", lte.schema->mode);
+    EXPECT_EQ("192.0.2.10", lte.options.text("address"));
+    EXPECT_EQ(14560, lte.options.port("address"));
     EXPECT_EQ(1024u, lte.tx_queue_bytes);
 
     const auto& gcs = config->endpoints[3];
     EXPECT_EQ("gcs.1-x_Y", gcs.name);
-    EXPECT_EQ(EndpointMode::Server, gcs.mode);
-    EXPECT_EQ(65535, gcs.port);
-    EXPECT_EQ(57600u, gcs.baud);  // untouched default
+    EXPECT_STREQ("server", gcs.schema->mode);
+    EXPECT_EQ(65535, gcs.options.port("address"));
+    EXPECT_FALSE(gcs.options.has("baud"));  // a UART's option: a UDP endpoint has none
 
     ASSERT_EQ(1u, config->bonds.size());
     EXPECT_EQ("vehicle", config->bonds[0].name);
@@ -286,12 +287,12 @@ endpoints:
 )");
     ASSERT_TRUE(config.has_value()) << config.error().message;
     const EndpointConfig& log = config->endpoints[0];
-    EXPECT_EQ(EndpointType::Tlog, log.type);
-    EXPECT_EQ("/var/log/mavbond", log.directory);
-    EXPECT_EQ(64u << 20, log.max_size);
+    EXPECT_STREQ("tlog", log.schema->type);
+    EXPECT_EQ("/var/log/mavbond", log.options.text("directory"));
+    EXPECT_EQ(64u << 20, log.options.number("max_size"));
     EXPECT_EQ(std::vector<uint32_t>{0}, log.filter_out.block);
-    EXPECT_EQ(1ull << 30, config->endpoints[1].max_size);
-    EXPECT_EQ(0u, config->endpoints[2].max_size);
+    EXPECT_EQ(1ull << 30, config->endpoints[1].options.number("max_size"));
+    EXPECT_EQ(0u, config->endpoints[2].options.number("max_size"));
 }
 
 TEST(ConfigParse, EmptyOptionalSections) {
@@ -320,7 +321,7 @@ TEST(ConfigParse, GarbageNeverThrows) {
     };
     for (const auto& text : inputs) {
         Result<Config> config = make_error("not run");
-        EXPECT_NO_THROW(config = parse_config(text, "t.yaml")) << text.substr(0, 40);
+        EXPECT_NO_THROW(config = parse_config(text, "t.yaml", endpoint_schemas())) << text.substr(0, 40);
         EXPECT_FALSE(config.has_value()) << text.substr(0, 40);
         if (!config.has_value()) {
             EXPECT_EQ(0u, config.error().message.rfind("t.yaml:", 0)) << config.error().message;
@@ -354,14 +355,14 @@ TEST(ParseDuration, Rejects) {
 // --- load_config -----------------------------------------------------------------------------
 
 TEST(LoadConfig, MissingFile) {
-    auto config = load_config("/nonexistent/mavbond.yaml");
+    auto config = load_config("/nonexistent/mavbond.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("/nonexistent/mavbond.yaml: cannot open: No such file or directory",
               config.error().message);
 }
 
 TEST(LoadConfig, Directory) {
-    auto config = load_config("/");
+    auto config = load_config("/", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("/: cannot read: Is a directory", config.error().message);
 }
@@ -373,7 +374,7 @@ TEST(LoadConfig, ErrorNamesTheFile) {
     const std::string text = "endpoints:\n  - {name: gcs, type: udp, mode: server, adress: x}\n";
     ASSERT_EQ(static_cast<ssize_t>(text.size()), write(fd, text.data(), text.size()));
     close(fd);
-    auto config = load_config(path);
+    auto config = load_config(path, endpoint_schemas());
     unlink(path);
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ(std::string(path) + ":2:42: endpoint 'gcs': unknown key 'adress'",
@@ -625,7 +626,7 @@ TEST(ConfigParse, WithoutTheSectionsMavbondSaysNothingOfItsOwn) {
 class BadConfig : public testing::TestWithParam<BadCase> {};
 
 TEST_P(BadConfig, FailsWithExactMessage) {
-    auto config = parse_config(GetParam().yaml, "t.yaml");
+    auto config = parse_config(GetParam().yaml, "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value()) << GetParam().yaml;
     EXPECT_EQ(GetParam().error, config.error().message) << GetParam().yaml;
 }
@@ -695,7 +696,7 @@ TEST(MetricsConfig, ErrorsNameTheirPlace) {
     auto error_of = [](const std::string& metrics) {
         auto c = parse_config("metrics:\n" + metrics +
                               "endpoints: [{name: a, type: udp, mode: server, address: 127.0.0.1:1}]\n",
-                              "t.yaml");
+                              "t.yaml", endpoint_schemas());
         return c ? std::string("(loaded)") : c.error().message;
     };
     EXPECT_EQ("t.yaml:2:11: metrics: 'listen': port '0' is not in 1..65535",
@@ -719,28 +720,28 @@ TEST(MetricsConfig, ErrorsNameTheirPlace) {
 namespace mavbond {
 TEST(ConfigParse, ControlCharacterRefusedWhereItIs) {
     const std::string nul("log_level: info\nend\0points: []\n", 31);
-    auto config = parse_config(nul, "t.yaml");
+    auto config = parse_config(nul, "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("t.yaml:2:4: control character 0x00 is not allowed in YAML", config.error().message);
-    config = parse_config("log_level: info\x1b\n", "t.yaml");
+    config = parse_config("log_level: info\x1b\n", "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("t.yaml:1:16: control character 0x1B is not allowed in YAML", config.error().message);
     // Tab and CR are allowed: a CRLF file with a tab in a value loads.
     config = parse_config("endpoints:\r\n  - {name: a, type: uart, device: \"/dev/a\tb\"}\r\n",
-                          "t.yaml");
+                          "t.yaml", endpoint_schemas());
     ASSERT_TRUE(config.has_value()) << config.error().message;
-    EXPECT_EQ("/dev/a\tb", config->endpoints[0].device);
+    EXPECT_EQ("/dev/a\tb", config->endpoints[0].options.text("device"));
 }
 
 // yaml-cpp's LoadAll() looped forever, allocating, on a stray ','. Found by tests/fuzz/fuzz_config.
 TEST(ConfigParse, StrayTokenRefused) {
-    auto config = parse_config(",", "t.yaml");
+    auto config = parse_config(",", "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("t.yaml:1:1: unexpected ','", config.error().message);
-    config = parse_config("- name: gcs\n,\n", "t.yaml");
+    config = parse_config("- name: gcs\n,\n", "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("t.yaml:2:1: unexpected ','", config.error().message);
-    config = parse_config("log_level: info\n---\n,\n", "t.yaml");
+    config = parse_config("log_level: info\n---\n,\n", "t.yaml", endpoint_schemas());
     ASSERT_FALSE(config.has_value());
     EXPECT_EQ("t.yaml:3:1: only one YAML document is allowed (found a second one after '---')",
               config.error().message);

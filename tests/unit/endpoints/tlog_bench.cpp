@@ -79,8 +79,8 @@ int run(size_t total, const std::string& dir) {
     src_cfg.name = "source";
     sink_cfg.name = "sink";
     log_cfg.name = "bench";
-    log_cfg.type = EndpointType::Tlog;
-    log_cfg.directory = dir;
+    log_cfg.schema = &kTlogType;
+    log_cfg.options.set("directory", OptionValue{.text = dir});
     Router router(*loop.value(), seconds(30));
     NullEndpoint source(src_cfg), sink(sink_cfg);
     router.attach(source);
