@@ -106,7 +106,10 @@ start_daemon() {   # start_daemon CONFIG
     "${RUN_AS[@]}" /usr/bin/mavbond --check-config -c "$1" >"$WORK/check.out" 2>&1 ||
         { fail "mavbond --check-config -c $1"; cat "$WORK/check.out"; return 1; }
     ok "mavbond --check-config -c $1: $(cat "$WORK/check.out")"
-    "${RUN_AS[@]}" /usr/bin/mavbond -c "$1" >"$WORK/daemon.log" 2>&1 &
+    # Emptied here, not by the background job's redirection: that one truncates only once the
+    # child runs, and the loop below could first read the previous daemon's "running with".
+    : >"$WORK/daemon.log"
+    "${RUN_AS[@]}" /usr/bin/mavbond -c "$1" >>"$WORK/daemon.log" 2>&1 &
     DAEMON_PID=$!
     for _ in $(seq 100); do
         grep -q "running with" "$WORK/daemon.log" && { ok "daemon running: $(grep -m1 'running with' "$WORK/daemon.log")"; return 0; }

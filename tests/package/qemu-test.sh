@@ -7,9 +7,12 @@
 #   tests/package/qemu-test.sh build-deb/mavbond_VERSION_arm64.deb [arm64|armhf]
 #
 # Needs qemu-user-static and the package's runtime libraries for that architecture
-# (libc6, libstdc++6, libyaml-cpp0.7 :arm64/:armhf; scripts/package installs them). qemu runs
+# (libc6, libstdc++6, libyaml-cpp0.7 :arm64/:armhf): scripts/package installs the arm64 ones on
+# this machine and runs the armhf test inside its armhf build chroot, which has them. qemu runs
 # without -L: with libc6:ARCH installed the binaries use the real loader (PACKAGING-NOTES,
-# pitfall 3). Nothing is installed; exit 0 when every check passes.
+# pitfall 3). armhf runs on an emulated Cortex-A7 (QEMU_CPU, the Raspberry Pi 2's core, the
+# oldest 32-bit Pi armhf supports), and must be refused by an ARMv6 core (Pi 1/Zero): Debian
+# armhf is ARMv7. Nothing is installed; exit 0 when every check passes.
 set -euo pipefail
 
 DEB=$(realpath "${1:?usage: qemu-test.sh PACKAGE.deb [ARCH]}")
@@ -17,7 +20,8 @@ ARCH=${2:-$(dpkg-deb -f "$DEB" Architecture)}
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 case "$ARCH" in
     arm64) QEMU=qemu-aarch64-static; ELF='ARM aarch64' ;;
-    armhf) QEMU=qemu-arm-static; ELF='32-bit.*ARM' ;;
+    armhf) QEMU=qemu-arm-static; ELF='32-bit .*ARM, EABI5.*interpreter /lib/ld-linux-armhf\.so\.3'
+           export QEMU_CPU=${QEMU_CPU:-cortex-a7} ;;
     *) echo "qemu-test: no qemu for $ARCH" >&2; exit 1 ;;
 esac
 command -v "$QEMU" >/dev/null || { echo "qemu-test: $QEMU missing (apt-get install qemu-user-static)" >&2; exit 1; }
@@ -37,12 +41,23 @@ stop_daemon() {
 }
 trap 'stop_daemon; rm -rf "$WORK"' EXIT
 
-echo "--- $(basename "$DEB") under $QEMU ($($QEMU --version | head -1))"
+echo "--- $(basename "$DEB") under $QEMU ($($QEMU --version | head -1))${QEMU_CPU:+, CPU $QEMU_CPU}"
 dpkg-deb -x "$DEB" "$ROOTFS"
 show "the daemon is an $ARCH binary" sh -c "file -L '$ROOTFS/usr/bin/mavbond' | tee /dev/stderr | grep -q '$ELF'"
+if [ "$ARCH" = armhf ]; then
+    # The CPU choice is real: an ARMv6 core stops at the first ARMv7 instruction.
+    check "an ARMv6 core (arm1176: Pi 1/Zero) is refused (SIGILL)" \
+        sh -c "QEMU_CPU=arm1176 $QEMU '$ROOTFS/usr/bin/mavbond' --version; [ \$? -eq 132 ]"
+fi
 show "plugins in the package" ls "$PLUGINDIR"
 show "mavbond --version under qemu" "$QEMU" "$ROOTFS/usr/bin/mavbond" --version
 show "the shipped config checks" "$QEMU" "$ROOTFS/usr/bin/mavbond" --check-config -c "$ROOTFS/etc/mavbond/mavbond.yaml"
+# The importer parses numbers (ports, rates, message ids) into the word size: on a 32-bit
+# target a bound that fits 64 bits only goes wrong (tests/integration/test_import.py's files).
+IMPORT_DATA=$HERE/../integration/data/mavlink-router
+check "mavbond --import-mavlink-router companion.conf under qemu gives companion.yaml" \
+    sh -c "cd '$IMPORT_DATA' && '$QEMU' '$ROOTFS/usr/bin/mavbond' --import-mavlink-router companion.conf \
+           >'$WORK/import.yaml' && diff -u companion.yaml '$WORK/import.yaml'"
 
 ports=$(python3 -c 'import socket
 ss=[socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(3)]
