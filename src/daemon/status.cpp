@@ -143,8 +143,7 @@ MetricSet status_metrics(const Status& s) {
             set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
                         {{"bond", b.name}});
     }
-    set.declare("mavbond_filter_dropped", "Frames a filter dropped (its own verdicts).",
-                MetricSet::Type::Counter);
+    set.declare(kFilterDroppedMetric, kFilterDroppedHelp, MetricSet::Type::Counter);
     // The chain checked its samples against one another; one that clashes with a family of
     // the host's (a plugin named like one) is left out.
     for (const FilterReport& f : s.filters) {

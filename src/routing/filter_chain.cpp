@@ -357,7 +357,6 @@ std::string status_of(const mavbond_plugin_descriptor& d, void* self) {
 std::vector<FilterReport> FilterChain::report() const {
     std::vector<FilterReport> reports;
     MetricSet families;  // what the chain's samples must agree on, as one /metrics document
-    const char* help = "Frames a filter dropped (its own verdicts).";
     for (const auto& inst : instances_) {
         const mavbond_plugin_descriptor& d = inst->plugin->descriptor();
         FilterReport& r = reports.emplace_back();
@@ -365,7 +364,7 @@ std::vector<FilterReport> FilterChain::report() const {
         r.plugin = inst->entry->plugin;
         r.dropped = inst->dropped;
         r.status_json = status_of(d, inst->self);
-        MetricSample dropped{MetricSet::Type::Counter, "mavbond_filter_dropped", help,
+        MetricSample dropped{MetricSet::Type::Counter, kFilterDroppedMetric, kFilterDroppedHelp,
                              {{"filter", r.name}, {"plugin", r.plugin}}, inst->dropped, 0};
         families.add(dropped);
         r.samples.push_back(std::move(dropped));

@@ -20,6 +20,10 @@
 
 namespace mavbond {
 
+/// The family each filter's drop count is a sample of (FilterReport::samples).
+inline constexpr const char* kFilterDroppedMetric = "mavbond_filter_dropped";
+inline constexpr const char* kFilterDroppedHelp = "Frames a filter dropped (its own verdicts).";
+
 /// A filter as the status shows it at one moment: the status socket, /metrics, the logs.
 struct FilterReport {
     std::string name;         // "dedup", or "dedup#2" for a second instance
