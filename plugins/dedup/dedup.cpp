@@ -256,6 +256,8 @@ private:
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
     /// Whether the link may have missed more than kAmbiguousStep frames since its last one.
     bool after_outage(const Lane& lane, const Stream& s, uint64_t t) const;
+    /// Whether key entry `e` has an instance of the arrival's stream its link has not had.
+    bool unseen_instance(const Arrival& a, uint32_t e) const;
     /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place.
     Verdict align(const Arrival& a, Lane& lane, uint32_t e, const char* why);
     Verdict copy_of(const Arrival& a, uint32_t rec);
@@ -786,6 +788,16 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     return v;
 }
 
+bool Dedup::unseen_instance(const Arrival& a, uint32_t e) const {
+    const Entry& en = entries_[e];
+    for (int i = 0; i < en.count; i++) {
+        const Record& r = ring_[en.rec[i]];
+        if (r.stream == a.stream && !(r.seen >> a.member & 1))
+            return true;
+    }
+    return false;
+}
+
 Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     Lane& lane = lane_of(a);
     Stream& s = streams_[a.stream];
@@ -793,8 +805,20 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         return align(a, lane, find(a.bond, key), nullptr);
     if (flags & MAVBOND_STREAM_RESYNC)
         return align(a, lane, find(a.bond, key), "its numbering restarted");
-    if (after_outage(lane, s, a.t))
-        return align(a, lane, find(a.bond, key), "an outage of 128 frames or more");
+    // A link that may have missed 128 frames or more (the others moved the stream that far,
+    // or it was silent that long): its step modulo 256 is ambiguous, and it is placed anew
+    // (identity first, then time). Yet a link that merely lags behind a burst the others
+    // delivered looks the same, and its frames continue where its last one was: when the
+    // position its alignment gives is free and its key was delivered nowhere, nothing says
+    // otherwise, and the alignment stands, tentatively (placing it by time instead, with the
+    // source's rate thrown by the burst, put the link's next frames where their copies were
+    // not, and delivered them twice).
+    if (after_outage(lane, s, a.t)) {
+        uint32_t e = find(a.bond, key);
+        if (at(a.stream, a.link_pos + lane.offset) != kNone || (e != kNone && unseen_instance(a, e)))
+            return align(a, lane, e, "an outage of 128 frames or more");
+        lane.tentative = 1;
+    }
 
     Verdict v;
     v.pos = a.link_pos + lane.offset;

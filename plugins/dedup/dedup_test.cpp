@@ -605,6 +605,57 @@ INSTANTIATE_TEST_SUITE_P(
         return n;
     });
 
+// Found with MAVSDK's 300-parameter list through a bond whose second link is 300 ms behind:
+// the fast link delivers the whole burst between two frames of the slow one, so the stream
+// moves more than 128 positions "while the slow link was silent"; the slow link's next frame,
+// one the fast link lost, was placed by time (with the source's rate thrown by the burst), and
+// the frames after it were taken for new ones and delivered twice.
+TEST_F(DedupTest, ALinkLaggingBehindABurstKeepsItsPlace) {
+    ASSERT_TRUE(create("window: 2s\nstale_after: 1s"));
+    struct Sent {
+        uint64_t t;
+        Bytes frame;
+    };
+    std::vector<Sent> sent;
+    uint64_t t = now();
+    uint8_t seq = 0;
+    for (uint32_t k = 0; k < 70; k++, t += 28 * kMs)  // 35 Hz telemetry
+        sent.push_back({t, v2(seq++, kAttitude, attitude_payload(k * 28))});
+    for (uint32_t k = 0; k < 300; k++)  // a parameter list at once
+        sent.push_back({t, v2(seq++, 22, {static_cast<uint8_t>(k), static_cast<uint8_t>(k >> 8)})});
+    for (uint32_t k = 70; k < 140; k++) {
+        t += 28 * kMs;
+        sent.push_back({t, v2(seq++, kAttitude, attitude_payload(k * 28))});
+    }
+    // The fast link loses the frame whose slow copy comes right after it delivered the burst.
+    const uint64_t burst_t = sent[70].t;
+    size_t lost = 0;
+    while (sent[lost].t + 300 * kMs <= burst_t)
+        lost++;
+    struct Copy {
+        uint64_t t;
+        const mavbond_link* link;
+        size_t index;
+    };
+    std::vector<Copy> arrivals;
+    for (size_t i = 0; i < sent.size(); i++) {
+        if (i != lost)
+            arrivals.push_back({sent[i].t, a_, i});
+        arrivals.push_back({sent[i].t + 300 * kMs, b_, i});
+    }
+    std::stable_sort(arrivals.begin(), arrivals.end(),
+                     [](const Copy& x, const Copy& y) { return x.t < y.t; });
+    std::vector<int> delivered(sent.size(), 0);
+    for (const Copy& x : arrivals) {
+        if (feed(*x.link, sent[x.index].frame, x.t) == MAVBOND_PASS)
+            delivered[x.index]++;
+    }
+    for (size_t i = 0; i < sent.size(); i++)
+        EXPECT_EQ(1, delivered[i]) << "frame " << i << (i == lost ? " (lost on the fast link)" : "");
+    for (const std::string& line : host_.logs)
+        EXPECT_EQ(std::string::npos, line.find("aligned anew")) << line;
+}
+
 TEST_F(DedupTest, LatencyStepChangesNothing) {
     // b's latency jumps from 300 ms to 700 ms half way (an LTE cell change): positions do not
     // care how late a copy comes, so nothing is lost and nothing passes twice.
