@@ -34,6 +34,15 @@ public:
         return nullptr;
     }
 
+    /// Calls f(value) for every source in the table.
+    template <class F>
+    void for_each(F&& f) {
+        for (Slot& s : slots_) {
+            if (s.used)
+                f(s.value);
+        }
+    }
+
 private:
     struct Slot {
         uint16_t key = 0;

@@ -5,12 +5,15 @@
 // from the stream positions the host gives each frame), so the switch goes to a backup known
 // to be alive instead of blindly to "the other link" as in the paper. A host timer checks for
 // silence, so a switch happens within switch_after + one tick. Reasons to switch, in order:
-//   1. silence: the active link is silent for `switch_after` (always allowed, even inside
-//      hold_down, and to any link heard now, on probation or not: a dead active link is worse
-//      than any other);
+//   1. silence: the active link is silent for `switch_after`, or for three of its usual gaps
+//      when its frames come further apart (a side that hears only the GCS's 1 Hz HEARTBEAT:
+//      one lost HEARTBEAT is no silence); always allowed, even inside hold_down, and to any
+//      link heard now, on probation or not: a dead active link is worse than any other;
 //   2. loss: its loss over `loss_window` exceeds `max_loss` and a backup is clearly better
 //      (lower by `switch_margin` and beyond chance, see clearly_better());
-//   3. failback: a more preferred link has been healthy for `failback_after`.
+//   3. failback: a more preferred link has been healthy for `failback_after` (its loss judged
+//      fine, or too few frames in its window to judge: a link carrying a HEARTBEAT a second
+//      can never be judged, and is not kept from its place for that).
 // 2 and 3 wait for `hold_down` after the previous switch. A loss figure is judged only once
 // the link has been heard for a whole window holding enough frames (see judged()), and a
 // link back from silence is on probation: no loss switch goes to it before it has been
@@ -23,6 +26,7 @@
 // Frames toward the peer are not touched: the host's bond tx policy decides that.
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -215,6 +219,10 @@ private:
 
 enum Reason : size_t { kSilence, kLoss, kFailback, kRemoved, kReasons };
 constexpr const char* kReasonNames[kReasons] = {"silence", "loss", "failback", "removed"};
+// A link is dead after this many of its usual longest gaps without a frame (when that is
+// longer than switch_after); the usual gap forgets a long one by half every kGapHalfLife.
+constexpr double kSilentGaps = 3;
+constexpr double kGapHalfLife = 5e9;
 
 struct Link {
     bool present = false;
@@ -223,6 +231,8 @@ struct Link {
     uint32_t member_order = 0;  // the host's position among the bond's members
     bool heard = false;
     uint64_t last_heard_ns = 0;  // creation time until heard, so silence counts from start
+    double gap_ns = -1;          // its usual longest gap between frames (decays by half in
+                                 // 5 s); -1 until its second frame
     uint64_t heard_since_ns = 0;  // heard without a silence since (its loss window's start)
     bool on_probation = false;    // back from silence, not yet healthy for failback_after
     bool healthy = false;
@@ -272,12 +282,23 @@ private:
     void order_members(Bond& b);
     void evaluate(Bond& b, uint64_t now);
     void update_health(Link& l, uint64_t now);
+    /// How long a link must be silent to be taken for dead (before its usual gap is known,
+    /// the longest that gap may turn out to be).
+    uint64_t silence(const Link& l) const {
+        double gaps = kSilentGaps * (l.gap_ns < 0 ? static_cast<double>(switch_after_) : l.gap_ns);
+        return std::max(switch_after_, static_cast<uint64_t>(gaps));
+    }
     bool alive(const Link& l, uint64_t now) const {
-        return l.present && l.heard && elapsed(now, l.last_heard_ns) < switch_after_;
+        return l.present && l.heard && elapsed(now, l.last_heard_ns) < silence(l);
     }
     bool judged(const Link& l, const LossFigure& f, uint64_t now) const {
         return alive(l, now) && elapsed(now, l.heard_since_ns) >= loss_window_ &&
                f.expected >= kMinExpected;
+    }
+    /// Heard for a whole window with too few frames in it to judge its loss.
+    bool thin(const Link& l, const LossFigure& f, uint64_t now) const {
+        return alive(l, now) && elapsed(now, l.heard_since_ns) >= loss_window_ &&
+               f.expected < kMinExpected;
     }
     bool clearly_better(const LossFigure& active, const LossFigure& backup) const;
     uint32_t pick_alive(const Bond& b, uint64_t now, uint64_t heard_within);
@@ -468,7 +489,14 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
     // Heard for the first time, or back from silence: its loss window starts afresh here.
     // The host's figure for the first frame back is the sequence jump over the outage (modulo
     // 256 anything from 0 to 127 frames), which says nothing: the outage counted as silence.
-    bool back = l->heard && elapsed(now, l->last_heard_ns) >= switch_after_;
+    const uint64_t gap = elapsed(now, l->last_heard_ns);
+    bool back = l->heard && gap >= silence(*l);
+    if (l->heard && !back) {
+        // The usual longest gap: a longer one is taken at once, a shorter one lets it decay
+        // with time (not with frames: a burst of hundreds must not make it forget 1 Hz).
+        double kept = l->gap_ns * std::exp2(-static_cast<double>(gap) / kGapHalfLife);
+        l->gap_ns = std::max(static_cast<double>(gap), l->gap_ns < 0 ? 0 : kept);
+    }
     if (!l->heard || back) {
         l->heard_since_ns = now;
         l->window.clear();
@@ -560,7 +588,7 @@ void LinkSwitch::update_health(Link& l, uint64_t now) {
     if (healthy && !l.healthy)
         l.healthy_since_ns = now;
     l.healthy = healthy;
-    if (l.on_probation && healthy && is_judged &&
+    if (l.on_probation && healthy && (is_judged || thin(l, f, now)) &&
         elapsed(now, l.healthy_since_ns) >= failback_after_)
         l.on_probation = false;
     // A full window with too few frames to judge: say so once, or "max_loss never acts"
@@ -650,7 +678,7 @@ void LinkSwitch::evaluate(Bond& b, uint64_t now) {
     // long ago: when the vehicle stops sending, every link falls silent within their latency
     // difference of each other, and there is nothing to switch to.
     uint64_t silent = elapsed(now, active.last_heard_ns);
-    if (silent >= switch_after_) {
+    if (silent >= silence(active)) {
         uint32_t next = pick_alive(b, now, switch_after_ / 2);
         if (next == kNone) {
             if (!b.stranded) {
@@ -693,7 +721,8 @@ void LinkSwitch::evaluate(Bond& b, uint64_t now) {
         if (id == b.active)
             break;
         Link& l = links_[id];
-        if (l.healthy && judged(l, l.window.totals(now), now) &&
+        LossFigure f = l.window.totals(now);
+        if (l.healthy && (judged(l, f, now) || thin(l, f, now)) &&
             elapsed(now, l.healthy_since_ns) >= failback_after_) {
             char after[32];
             format_duration(failback_after_, after, sizeof after);

@@ -265,6 +265,35 @@ TEST_F(LinkSwitchTest, FirstLinkIsActiveAndOthersAreDroppedAndCounted) {
     EXPECT_EQ(s.find("gcs"), std::string::npos) << s;
 }
 
+// Found on the air side of a bond between MAVSDK peers: between transfers it hears only the
+// GCS's HEARTBEAT, 1 Hz on each link. One lost HEARTBEAT was a second's silence: the bond
+// switched to the 300 ms link, and never came back, as a link carrying one frame a second has
+// too few frames to judge its loss. A lost HEARTBEAT is no silence now (three usual gaps), and
+// a preferred link too thin to judge may take its place back once healthy for failback_after.
+TEST_F(LinkSwitchTest, AOneHertzLinkLosingAHeartbeatStaysAndThinLinksFailBack) {
+    host_.add_link("fast", "vehicle");
+    host_.add_link("slow", "vehicle");
+    create("switch_after: 1s\nfailback_after: 10s");
+    Sender fast{"fast"}, slow{"slow"};
+    run(seconds(10), {&fast, &slow}, seconds(1));
+    ASSERT_EQ(active(), "fast");
+    fast.sent++;  // one HEARTBEAT lost on fast: 2 s between two of its frames
+    fast.seq++;
+    run(seconds(1), {&slow}, seconds(1));
+    run(seconds(5), {&fast, &slow}, seconds(1));
+    EXPECT_EQ(active(), "fast") << "one lost HEARTBEAT is no silence";
+    // fast really goes silent: the bond moves to slow, and back once fast is heard again and
+    // healthy for failback_after, though its window never holds enough frames to judge.
+    fast.on = false;
+    run_until_active("slow", seconds(10), {&fast, &slow}, seconds(1));
+    ASSERT_EQ(active(), "slow");
+    fast.on = true;
+    uint64_t took = run_until_active("fast", seconds(60), {&fast, &slow}, seconds(1));
+    EXPECT_EQ(active(), "fast");
+    EXPECT_GE(took, 10'000'000'000u) << "not before failback_after";
+    EXPECT_LT(took, 20'000'000'000u);
+}
+
 TEST_F(LinkSwitchTest, SilenceSwitchesWithinSwitchAfterPlusOneTick) {
     host_.add_link("radio", "vehicle");
     host_.add_link("lte", "vehicle");

@@ -1,5 +1,6 @@
-// Loss from MAVLink sequence numbers, per source (sysid, compid): stats counts a bond's
-// delivered stream with it (each link's loss comes from the host's stream positions).
+// Loss of a bond's delivered stream, per source (sysid, compid), for stats (each link's loss
+// comes from the host's stream positions): by the bond's positions where dedup notes them,
+// else from MAVLink sequence numbers.
 //
 // MAVLink has one 8-bit sequence counter per source, so loss is only measurable per source and
 // only modulo 256: a forward step of g (1 <= g < 128) means g - 1 frames were lost; anything
@@ -8,8 +9,10 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 
 #include "mavbond/source_table.hpp"
+#include "mavbond/stream_holes.hpp"
 
 namespace mavbond_plugins {
 
@@ -82,6 +85,50 @@ public:
 
 private:
     mavbond::SourceTable<SeqTracker, 64> trackers_;
+};
+
+/// The delivered stream of a bond: by position when the frame has one (a copy from a slower
+/// link fills its hole however far behind a burst it comes), else by sequence number. Holes
+/// become lost after StreamHoles' hold, at a frame or an expire() call.
+class DeliveredLoss {
+public:
+    /// A delivered frame; `pos` its bond position, nullptr when dedup did not place it.
+    SeqStep step(uint8_t sysid, uint8_t compid, const int64_t* pos, uint8_t seq, int64_t t_ns) {
+        Source* s = sources_.find(sysid, compid);
+        if (!s)
+            return SeqStep{1, 0};
+        if (!pos)
+            return s->seq.step(seq);
+        if (!s->holes)
+            s->holes = std::make_unique<mavbond::StreamHoles>();
+        uint64_t lost = s->holes->expire(t_ns);
+        switch (s->holes->deliver(*pos, t_ns, lost)) {
+        case mavbond::StreamHoles::Arrival::New:
+        case mavbond::StreamHoles::Arrival::Filled:
+            return SeqStep{1, static_cast<int32_t>(lost)};
+        case mavbond::StreamHoles::Arrival::AfterLoss:
+            break;
+        }
+        // Counted lost, then delivered after all.
+        return SeqStep{1, static_cast<int32_t>(lost) - 1};
+    }
+
+    /// The holes that have waited long enough by t_ns, counted lost now.
+    int64_t expire(int64_t t_ns) {
+        int64_t lost = 0;
+        sources_.for_each([&](Source& s) {
+            if (s.holes)
+                lost += static_cast<int64_t>(s.holes->expire(t_ns));
+        });
+        return lost;
+    }
+
+private:
+    struct Source {
+        SeqTracker seq;
+        std::unique_ptr<mavbond::StreamHoles> holes;  // from its first frame with a position
+    };
+    mavbond::SourceTable<Source, 64> sources_;
 };
 
 /// Loss as a fraction of expected frames; negative totals (late frames filling gaps counted

@@ -24,7 +24,7 @@ namespace {
 using mavbond::JsonOut;
 using mavbond_plugins::loss_fraction;
 using mavbond_plugins::SeqStep;
-using mavbond_plugins::StreamLoss;
+using mavbond_plugins::DeliveredLoss;
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 constexpr double kNsPerMs = 1e6;
@@ -112,7 +112,7 @@ struct BondStats {
     uint32_t width = 0;             // skew matrix side: positions 0..width-1
     std::vector<Skew> skew;         // [first copy's member position * width + late copy's]
     BondTotals total, prev, interval;
-    StreamLoss delivered_sources;
+    DeliveredLoss delivered_sources;
     mavbond_bond_state state{};
 };
 
@@ -258,11 +258,11 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
     b.total.bytes += f->raw_len;
     if (!(flags & MAVBOND_NOTE_DROPPED)) {
         b.total.delivered++;
-        // The delivered stream, numbered as dedup numbers it when it does (the same for every
-        // link's copy, whatever each link's own counter), else by the frames' own numbers.
-        auto seq = static_cast<uint8_t>(
-            notes && (flags & MAVBOND_NOTE_POSITION) ? notes->bond_pos : f->seq);
-        SeqStep d = b.delivered_sources.step(f->sysid, f->compid, seq);
+        // The delivered stream, by the position dedup gives it when it does (the same for
+        // every link's copy, whatever each link's own counter), else by its own numbers.
+        const int64_t* pos = notes && (flags & MAVBOND_NOTE_POSITION) ? &notes->bond_pos : nullptr;
+        SeqStep d = b.delivered_sources.step(f->sysid, f->compid, pos, f->seq,
+                                             static_cast<int64_t>(f->rx_time_ns));
         b.total.received += d.received;
         b.total.lost += d.lost;
     } else {
@@ -323,6 +323,7 @@ int Stats::tick() {
         l.prev = l.total;
     }
     for (BondStats& b : bonds_) {
+        b.total.lost += b.delivered_sources.expire(static_cast<int64_t>(now));
         b.total.crc_errors = 0;
         for (uint32_t id : b.members)
             b.total.crc_errors += links_[id].total.crc_errors;

@@ -1,6 +1,5 @@
 #include "routing/renumber.h"
 
-#include <bit>
 
 namespace mavbond {
 
@@ -23,45 +22,6 @@ SeqRenumberer::Source* SeqRenumberer::source(uint8_t sysid, uint8_t compid) {
     return nullptr;
 }
 
-void SeqRenumberer::expire_holes(Source& s, int64_t t_ns) {
-    // Higher bits are older positions, skipped no later than lower ones.
-    while (s.holes != 0) {
-        int j = 63 - std::countl_zero(s.holes);
-        int64_t pos = s.frontier - 1 - j;
-        if (t_ns - s.skipped_at[static_cast<uint64_t>(pos) % kHoles] < kHoldNs)
-            return;
-        s.holes &= ~(uint64_t{1} << j);
-        s.owed++;
-    }
-}
-
-void SeqRenumberer::place(Source& s, int64_t pos, int64_t t_ns) {
-    if (pos >= s.frontier) {
-        // pos is new: the positions between the frontier and pos become holes.
-        int64_t ahead = pos - s.frontier;
-        uint64_t shift = static_cast<uint64_t>(ahead) + 1;
-        uint64_t dropped = shift >= 64 ? s.holes : s.holes >> (64 - shift);
-        s.owed += static_cast<uint32_t>(std::popcount(dropped));  // too old to track: lost
-        s.holes = shift >= 64 ? 0 : s.holes << shift;
-        for (int64_t j = 1; j <= ahead; j++) {
-            if (j >= kHoles) {
-                s.owed += static_cast<uint32_t>(ahead - j + 1);
-                break;
-            }
-            s.holes |= uint64_t{1} << j;
-            s.skipped_at[static_cast<uint64_t>(pos - j) % kHoles] = t_ns;
-        }
-        s.frontier = pos + 1;
-        return;
-    }
-    int64_t behind = s.frontier - 1 - pos;
-    if (behind < kHoles && (s.holes >> behind & 1)) {
-        s.holes &= ~(uint64_t{1} << behind);  // a late copy: its hole is filled
-        counters_.late_filled++;
-    }
-    // Else a frame older than the holes kept: delivered, and already counted lost.
-}
-
 uint8_t SeqRenumberer::next_number(Source& s) {
     auto out = static_cast<uint8_t>(s.next_out + s.owed);
     counters_.gaps += s.owed;
@@ -78,13 +38,15 @@ uint8_t SeqRenumberer::deliver(uint8_t sysid, uint8_t compid, uint8_t seq, int64
         counters_.untracked++;
         return seq;
     }
-    if (!s->started) {
-        s->started = true;
-        s->frontier = pos;
+    if (!s->holes) {
+        s->holes = std::make_unique<StreamHoles>();
         s->next_out = seq;  // the first frame keeps its number
     }
-    expire_holes(*s, t_ns);
-    place(*s, pos, t_ns);
+    s->owed += s->holes->expire(t_ns);
+    if (s->holes->deliver(pos, t_ns, s->owed) == StreamHoles::Arrival::Filled)
+        counters_.late_filled++;
+    // Else new (its skipped positions are holes now), or a copy later than its hole waited:
+    // delivered, and already counted lost.
     return next_number(*s);
 }
 
@@ -95,7 +57,7 @@ uint8_t SeqRenumberer::deliver_unplaced(uint8_t sysid, uint8_t compid, uint8_t s
         return seq;
     }
     counters_.unplaced++;
-    if (!s->started)
+    if (!s->holes)
         return seq;  // nothing to continue yet: its own number
     return next_number(*s);
 }

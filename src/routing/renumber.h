@@ -9,16 +9,22 @@
 // that followed it, and given its own number it would go backwards, which QGroundControl and
 // MAVProxy count as ~255 lost frames. So output numbers only ever step by one, plus the gaps
 // owed: a position skipped is a hole; a late copy fills it; a hole no copy filled within
-// kHold (1 s), or before 64 newer positions of the source passed (the bits kept per source;
-// 0.5 s at 124 frames/s), is a frame lost on every link, and the next frame delivered steps
-// over it. Gaps appear that late, and count exactly the frames lost on every link; a copy
-// later still is delivered and also counted lost.
+// a second, or before 1024 newer positions of the source passed (mavbond/stream_holes.hpp),
+// is a frame lost on every link, and the next frame delivered steps over it. Gaps appear that late, and count
+// exactly the frames lost on every link; a copy later still is delivered and also counted
+// lost. (The holes are kept by position, not by count: a burst, such as a 300-parameter list,
+// moves the stream hundreds of positions in milliseconds while a copy is still on its way on
+// the slower link. With only 64 kept, such a copy came too late to fill its hole, and the GCS
+// counted a frame lost that the bond delivered.)
 //
-// Everything is sized at construction: no allocation per frame, O(1) per frame.
+// A source's holes are allocated with its first frame; nothing per frame, O(1) amortised.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
+
+#include "mavbond/stream_holes.hpp"
 
 namespace mavbond {
 
@@ -33,8 +39,6 @@ public:
     };
 
     static constexpr uint32_t kMaxSources = 64;
-    static constexpr uint32_t kHoles = 64;             // positions behind the frontier tracked
-    static constexpr int64_t kHoldNs = 1'000'000'000;  // kHold: how long a hole waits for a copy
 
     SeqRenumberer();
 
@@ -51,21 +55,15 @@ public:
 private:
     struct Source {
         bool in_use = false;
-        bool started = false;
         uint8_t sysid = 0;
         uint8_t compid = 0;
-        int64_t frontier = 0;   // the position expected next
         uint8_t next_out = 0;   // the output number the next frame gets, before owed gaps
-        uint32_t owed = 0;      // holes expired (lost on every link), not yet stepped over
-        uint64_t holes = 0;     // bit j: position frontier - 1 - j skipped, no copy yet
-        int64_t skipped_at[kHoles] = {};  // by position % kHoles: when it became a hole
+        uint64_t owed = 0;      // holes lost (on every link), not yet stepped over
+        std::unique_ptr<StreamHoles> holes;  // from the source's first placed frame
     };
 
     Source* source(uint8_t sysid, uint8_t compid);
-    /// Holes older than kHold become owed gaps, oldest first.
-    void expire_holes(Source& s, int64_t t_ns);
-    /// Moves the frontier past position `pos` (a frame at or ahead of it), or fills its hole.
-    void place(Source& s, int64_t pos, int64_t t_ns);
+
     /// The output number for the next delivered frame of `s`, stepping over the gaps owed.
     uint8_t next_number(Source& s);
 

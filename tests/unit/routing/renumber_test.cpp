@@ -79,13 +79,35 @@ TEST(Renumber, GapsAreExactlyTheFramesLostOnEveryLink) {
     EXPECT_EQ(3, skipped(d));
     EXPECT_EQ(3u, r.counters().gaps);
     EXPECT_EQ(3u, r.counters().late_filled) << "6, 7 and 100 came from B after a later frame";
-    // A hole waits a second or 64 numbers, whichever ends first: at 100 frames/s, 64 frames.
+    // A hole waits a second (or 1024 positions): at 100 frames/s, 100 frames. 300 and 301
+    // became holes together (when 302 came) and are stepped over together; 450 when 451 came.
     std::vector<int> gap_at;
     for (size_t i = 1; i < d.size(); i++) {
         if (static_cast<uint8_t>(d[i].out - d[i - 1].out) > 1)
             gap_at.push_back(d[i].frame);
     }
-    EXPECT_EQ((std::vector<int>{300 + 64, 301 + 64, 450 + 64}), gap_at);
+    EXPECT_EQ((std::vector<int>{302 + 100, 451 + 100}), gap_at);
+}
+
+// Found with MAVProxy behind a bond whose second link is 300 ms behind: a 300-parameter list
+// moves the stream hundreds of positions in milliseconds; a parameter the fast link lost comes
+// by the slow one 300 ms later, and must fill its hole, not be counted lost.
+TEST(Renumber, ACopyLateBehindABurstFillsItsHole) {
+    SeqRenumberer r;
+    std::vector<Delivery> d;
+    int64_t t = 0;
+    for (int i = 0; i < 100; i++, t += 10 * kMs)
+        d.push_back({i, r.deliver(1, 1, static_cast<uint8_t>(i), i, t)});
+    for (int i = 100; i < 400; i++) {  // the burst, all at once; 150 lost on the fast link
+        if (i != 150)
+            d.push_back({i, r.deliver(1, 1, static_cast<uint8_t>(i), i, t)});
+    }
+    d.push_back({150, r.deliver(1, 1, 150, 150, t + 300 * kMs)});  // the slow link's copy
+    for (int i = 400; i < 500; i++, t += 10 * kMs)
+        d.push_back({i, r.deliver(1, 1, static_cast<uint8_t>(i), i, t + 310 * kMs)});
+    EXPECT_EQ(0, skipped(d));
+    EXPECT_EQ(0u, r.counters().gaps);
+    EXPECT_EQ(1u, r.counters().late_filled);
 }
 
 TEST(Renumber, AtLowRatesAHoleWaitsASecond) {
@@ -129,11 +151,15 @@ TEST(Renumber, AFrameWithoutAPositionTakesTheNextNumber) {
 TEST(Renumber, PositionsAcrossAWrapAndFarAheadCountEveryFrameLost) {
     SeqRenumberer r;
     EXPECT_EQ(250, r.deliver(1, 1, 250, 250, 0));
-    // 300 positions later (an outage of every link): 299 lost. The 63 nearest wait as holes
-    // for a late copy; those further back are owed at once.
-    EXPECT_EQ(static_cast<uint8_t>(251 + 299 - 63), r.deliver(1, 1, 38, 550, kMs));
+    // 300 positions later (an outage of every link): 299 lost. They wait as holes for a late
+    // copy, a second; then every one is owed.
+    EXPECT_EQ(251, r.deliver(1, 1, 38, 550, kMs));
     EXPECT_EQ(static_cast<uint8_t>(252 + 299), r.deliver(1, 1, 39, 551, 2000 * kMs));
     EXPECT_EQ(299u, r.counters().gaps);
+    // 2,000 positions later: those more than 1024 behind are owed at once, the rest wait.
+    EXPECT_EQ(static_cast<uint8_t>(253 + 299 + 1999 - 1023), r.deliver(1, 1, 40, 2551, 2001 * kMs));
+    EXPECT_EQ(static_cast<uint8_t>(254 + 299 + 1999), r.deliver(1, 1, 41, 2552, 4000 * kMs));
+    EXPECT_EQ(299u + 1999u, r.counters().gaps);
 }
 
 TEST(Renumber, SourcesAreNumberedApart) {
