@@ -9,9 +9,9 @@ a link emulator, the three modes side by side, every ground gateway frozen on a 
 unless --no-stall); at most --jobs at a time (2 on 2 cores: each worker's processes need about
 half a core). The dedup window experiment (window_cost.py) and the stale_after sweep
 (stale_after.py) are two more jobs. Then the figures (analyze.py) go into OUT/results.md and
-the plots (plots.py) into OUT/*.png. --publish copies results.md and the PNGs to
-tests/compare/results/ and rewrites the README's "## Results" section from this run (or writes
-it to --readme-out).
+the plots (plots.py) into OUT/*.png. --publish (publish.py) copies the PNGs and results.md, with
+the findings added after its summary, to tests/compare/results/, and rewrites the README's
+"## Results" section, the headline, from this run (or writes it to --readme-out).
 
 Exits 1 when dedup is not exact somewhere: a duplicate delivered, a good frame dropped (a frame
 some link carried that is not a sample dedup dropped as stale, by its own count), or a record
@@ -355,8 +355,8 @@ def main() -> int:
                     help="freeze every ground gateway 150 ms every 2-2.5 s and once for 1 s "
                          "(default on; --no-stall: never)")
     ap.add_argument("--publish", action="store_true",
-                    help="copy results.md and the PNGs to tests/compare/results/ and rewrite "
-                         "the README's Results section")
+                    help="copy results.md (with the findings) and the PNGs to "
+                         "tests/compare/results/ and rewrite the README's Results section")
     ap.add_argument("--readme-out", metavar="FILE",
                     help="with --publish: write the Results section to FILE instead of "
                          "rewriting README.md")

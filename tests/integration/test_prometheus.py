@@ -1,6 +1,6 @@
 """Debian's Prometheus server (not a parser of ours) scraping a real mavbond with the scrape
 config shipped in conf/examples: the target is up with no scrape error, every metric family
-the README documents is stored, a PromQL query of every series returns what the daemon serves
+mavbond(8) documents is stored, a PromQL query of every series returns what the daemon serves
 and what its status socket shows, and every Grafana dashboard query evaluates without error.
 
 scripts/setup.sh installs the prometheus package; without it the test skips and says so."""
@@ -25,7 +25,7 @@ from test_metrics import DASHBOARD, scrape, status_document, tcp_port, value
 
 PROMETHEUS = shutil.which("prometheus") or "/usr/bin/prometheus"
 SCRAPE_CONFIG = REPO / "conf" / "examples" / "prometheus-mavbond.yml"
-README = REPO / "README.md"
+MANUAL = REPO / "conf" / "man" / "mavbond.8.in"
 # Series whose value moves between two reads of a quiet daemon: its clock, the age of its last
 # frame, and the HTTP endpoint's own counters (every scrape adds to them).
 MOVING = re.compile(r"^mavbond_(uptime_seconds|endpoint_last_rx_age_seconds|metrics_http_\w+)$")
@@ -36,28 +36,35 @@ pytestmark = pytest.mark.skipif(
 
 
 def documented_families() -> set:
-    """Every metric name in the README's table of what /metrics serves, `{a,b}` expanded and
-    `<counter>` replaced by the counters the row lists."""
-    text = README.read_text()
-    table = text[text.index("| metric | labels | what |"):]
-    table = table[:table.index("\n\n")]
+    """Every metric name in mavbond(8)'s METRICS section: the tag lines of its list (`.TP` and
+    `.TQ`), roff escapes removed, `{a,b}` expanded and `COUNTER` replaced by the counters that
+    entry lists in bold."""
+    text = MANUAL.read_text()
+    section = text[text.index("\n.SH METRICS\n") + 1:]
+    section = section[:section.index("\n.SH ")]
     names = set()
-    for row in table.splitlines()[2:]:
-        first, _, rest = row.strip("|").partition("|")
-        counters = re.findall(r"`([a-z_]+)`", rest.split("|")[-1])
-        for pattern in re.findall(r"`(mavbond_[^`]+)`", first):
-            expanded = [pattern]
-            while any("{" in p or "<counter>" in p for p in expanded):
-                nxt = []
-                for p in expanded:
-                    if "<counter>" in p:
-                        nxt += [p.replace("<counter>", c) for c in counters]
-                    elif m := re.search(r"\{([^}]*)\}", p):
-                        nxt += [p[:m.start()] + alt + p[m.end():] for alt in m.group(1).split(",")]
-                    else:
-                        nxt.append(p)
-                expanded = nxt
-            names |= set(expanded)
+    for entry in re.split(r"^\.TP\n", section, flags=re.M)[1:]:
+        lines = entry.splitlines()
+        tags = [lines[0]] + [lines[i + 1] for i, line in enumerate(lines[:-1]) if line == ".TQ"]
+        body = "\n".join(line for line in lines[1:] if line not in tags and line != ".TQ")
+        counters = re.findall(r"\\fB([a-z_]+)\\f[RP]", body)
+        for tag in tags:
+            tag = re.sub(r"\\f[BIRP]|\\[:%&]", "", tag)
+            for pattern in re.findall(r"mavbond_(?:[A-Za-z_]|\{[^}]*\})+", tag):
+                expanded = [pattern]
+                while any("{" in p or "COUNTER" in p for p in expanded):
+                    nxt = []
+                    for p in expanded:
+                        if "COUNTER" in p:
+                            assert counters, f"{tag}: no counters listed"
+                            nxt += [p.replace("COUNTER", c) for c in counters]
+                        elif m := re.search(r"\{([^}]*)\}", p):
+                            nxt += [p[:m.start()] + alt + p[m.end():]
+                                    for alt in m.group(1).split(",")]
+                        else:
+                            nxt.append(p)
+                    expanded = nxt
+                names |= set(expanded)
     return names
 
 
