@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""The link emulator (tests/tools/linkemu.py --group) with one thing added: a link can be cut
+and restored when the traffic reaches a given point, not at a given time.
+
+    cutlinks.py --group SPEC.json --cuts CUTS.json --cut-log CUTS-DONE.jsonl
+
+SPEC.json is linkemu's group spec. CUTS.json is a list of steps taken one after the other:
+
+    [{"on": {"link": "fast", "dir": "up", "msgid": 22, "count": 150},
+      "do": [["cut", "fast"]]},
+     {"on": {"link": "fast", "dir": "up", "msgid": 22, "count": 10},
+      "do": [["restore", "fast"], ["cut", "slow"]]}, ...]
+
+A step fires on the `count`-th datagram carrying `msgid` (its first frame's) that arrives on
+link `on.link` in direction `on.dir` after the previous step fired (datagrams a cut link
+drops still arrive, so they count). `cut` drops everything on a link from the next datagram
+on, in both directions, recorded in the drop logs with reason "outage" like linkemu's timed
+outages; `restore` ends a cut before the datagram that fires the step, which passes. So where
+a cut falls in a transfer depends only on the protocol's progress, never on the machine's
+timing. Each step taken is one JSON line in the cut log: the step, the counting link's
+datagram index in that direction, and the time (s since the group started).
+
+Everything else (banner, signals, counters on stdout, drop and send logs) is linkemu's, so
+tests/integration/bonding_helpers.EmuGroup drives it unchanged."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+import linkemu  # noqa: E402
+
+
+def msgid_of(data: bytes) -> int:
+    if len(data) >= 10 and data[0] == 0xFD:
+        return data[7] | data[8] << 8 | data[9] << 16
+    if len(data) >= 6 and data[0] == 0xFE:
+        return data[5]
+    return -1
+
+
+class Cutter:
+    def __init__(self, group: linkemu.LinkGroup, steps: list, log_path: str):
+        self.group = group
+        self.steps = steps
+        self.next = 0
+        self.seen = 0
+        self.done: list = []
+        self.log_path = log_path
+        for link in group.links:
+            for d in link.dirs.values():
+                d.admit = self._wrap(link, d, d.admit)
+
+    def _wrap(self, link, direction, admit):
+        def wrapped(data, now, rel, have_peer=True):
+            step = self._match(link.name, direction.name, data)
+            if step is not None:
+                for action, target in step["do"]:
+                    if action == "restore":
+                        self._restore(self.group.link(target), rel)
+                self.done.append(dict(step, index=direction.index, t=round(rel, 6)))
+            r = admit(data, now, rel, have_peer)
+            if step is not None:
+                for action, target in step["do"]:
+                    if action == "cut":
+                        self._cut(self.group.link(target), rel)
+            return r
+        return wrapped
+
+    def _match(self, link: str, direction: str, data: bytes):
+        if self.next >= len(self.steps):
+            return None
+        step = self.steps[self.next]
+        on = step["on"]
+        if on["link"] != link or on["dir"] != direction or msgid_of(data) != on["msgid"]:
+            return None
+        self.seen += 1
+        if self.seen < on["count"]:
+            return None
+        self.next += 1
+        self.seen = 0
+        return step
+
+    @staticmethod
+    def _cut(link, rel: float) -> None:
+        # Datagrams admitted after this one (rel' >= rel) fall inside [rel, inf).
+        for d in link.dirs.values():
+            d.cfg.outage = list(d.cfg.outage) + [(rel, math.inf)]
+
+    @staticmethod
+    def _restore(link, rel: float) -> None:
+        for d in link.dirs.values():
+            if d.cfg.outage and d.cfg.outage[-1][1] == math.inf:
+                start, _ = d.cfg.outage[-1]
+                d.cfg.outage[-1] = (start, rel - start)   # the datagram at `rel` passes
+
+    def write(self) -> None:
+        with open(self.log_path, "w") as f:
+            for r in self.done:
+                f.write(json.dumps(r) + "\n")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--group", required=True)
+    ap.add_argument("--cuts", required=True)
+    ap.add_argument("--cut-log", required=True)
+    a = ap.parse_args()
+    steps = json.loads(Path(a.cuts).read_text())
+    group = linkemu.LinkGroup(linkemu.load_group_spec(a.group))
+    names = {link.name for link in group.links}
+    for s in steps:
+        on = s.get("on", {})
+        if (on.get("dir") not in ("up", "down") or on.get("link") not in names
+                or not isinstance(on.get("count"), int) or on["count"] < 1
+                or not s.get("do") or any(act not in ("cut", "restore") or l not in names
+                                          for act, l in s["do"])):
+            ap.error(f"bad step {s} (links: {sorted(names)})")
+    cutter = Cutter(group, steps, a.cut_log)
+    signal.signal(signal.SIGTERM, lambda *_: group.request_stop())
+    signal.signal(signal.SIGINT, lambda *_: group.request_stop())
+    signal.signal(signal.SIGUSR1, lambda *_: group.request_dump())
+    for link in group.links:
+        print(f"linkemu: link {link.name}: {link.banner()}", file=sys.stderr)
+    group.on_start = lambda: print(f"linkemu: group of {len(group.links)} links listening",
+                                   file=sys.stderr, flush=True)
+    group.run()
+    group.dump()
+    cutter.write()
+    group.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
