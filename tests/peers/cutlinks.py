@@ -13,12 +13,13 @@ SPEC.json is linkemu's group spec. CUTS.json is a list of steps taken one after 
 
 A step fires on the `count`-th datagram carrying `msgid` (its first frame's) that arrives on
 link `on.link` in direction `on.dir` after the previous step fired (datagrams a cut link
-drops still arrive, so they count). `cut` drops everything on a link from the next datagram
-on, in both directions, recorded in the drop logs with reason "outage" like linkemu's timed
-outages; `restore` ends a cut before the datagram that fires the step, which passes. So where
-a cut falls in a transfer depends only on the protocol's progress, never on the machine's
-timing. Each step taken is one JSON line in the cut log: the step, the counting link's
-datagram index in that direction, and the time (s since the group started).
+drops still arrive, so they count). `cut` drops everything on a link from the datagram after
+the one that fires the step, in both directions, recorded in the drop logs with reason
+"outage" like linkemu's timed outages; `restore` ends a cut from the datagram that fires the
+step, which passes (see Cutter for how this holds across links). So where a cut falls in a
+transfer depends only on the protocol's progress, never on the machine's timing. Each step
+taken is one JSON line in the cut log (written as it is taken): the step, the counting
+link's datagram index in that direction, and the time (s since the group started).
 
 Everything else (banner, signals, counters on stdout, drop and send logs) is linkemu's, so
 tests/integration/bonding_helpers.EmuGroup drives it unchanged."""
@@ -44,11 +45,21 @@ def msgid_of(data: bytes) -> int:
 
 
 class Cutter:
+    """Takes the steps. The links of a group carry the same datagrams in the same order in
+    each direction (one sender fans every frame out to all of them), so a datagram's index
+    names the same frame on every link; a step's cuts and restores take effect at an index
+    of the step's direction, not at an instant: link B cut "from now" while its socket has
+    not been read as far as link A's would lose there what A lost too. The fired datagram's
+    index is i: a cut starts at i + 1, a restore at i (that datagram passes), on every link
+    named. In the other direction they take effect at each link's next datagram. The next
+    step counts only once the step's cuts and restores of its own direction took effect."""
+
     def __init__(self, group: linkemu.LinkGroup, steps: list, log_path: str):
         self.group = group
         self.steps = steps
         self.next = 0
         self.seen = 0
+        self.pending: list = []      # [link, direction, action, first index]
         self.done: list = []
         self.log_path = log_path
         for link in group.links:
@@ -57,18 +68,21 @@ class Cutter:
 
     def _wrap(self, link, direction, admit):
         def wrapped(data, now, rel, have_peer=True):
+            i = direction.index                  # the index this datagram gets
             step = self._match(link.name, direction.name, data)
             if step is not None:
                 for action, target in step["do"]:
-                    if action == "restore":
-                        self._restore(self.group.link(target), rel)
-                self.done.append(dict(step, index=direction.index, t=round(rel, 6)))
-            r = admit(data, now, rel, have_peer)
-            if step is not None:
-                for action, target in step["do"]:
-                    if action == "cut":
-                        self._cut(self.group.link(target), rel)
-            return r
+                    for name, d in self.group.link(target).dirs.items():
+                        at = (i if action == "restore" else i + 1) \
+                            if name == direction.name else d.index
+                        self.pending.append([target, name, action, at])
+                self.done.append(dict(step, index=i, t=round(rel, 6)))
+                self.write()
+            for p in [p for p in self.pending if p[0] == link.name and p[1] == direction.name
+                      and p[3] <= i]:
+                self.pending.remove(p)
+                (self._restore if p[2] == "restore" else self._cut)(direction, rel)
+            return admit(data, now, rel, have_peer)
         return wrapped
 
     def _match(self, link: str, direction: str, data: bytes):
@@ -78,6 +92,8 @@ class Cutter:
         on = step["on"]
         if on["link"] != link or on["dir"] != direction or msgid_of(data) != on["msgid"]:
             return None
+        if any(p[1] == direction for p in self.pending):
+            return None                          # the previous step is still taking effect
         self.seen += 1
         if self.seen < on["count"]:
             return None
@@ -86,17 +102,16 @@ class Cutter:
         return step
 
     @staticmethod
-    def _cut(link, rel: float) -> None:
-        # Datagrams admitted after this one (rel' >= rel) fall inside [rel, inf).
-        for d in link.dirs.values():
+    def _cut(d, rel: float) -> None:
+        # This datagram (admitted at rel) and every later one fall inside [rel, inf).
+        if not (d.cfg.outage and d.cfg.outage[-1][1] == math.inf):
             d.cfg.outage = list(d.cfg.outage) + [(rel, math.inf)]
 
     @staticmethod
-    def _restore(link, rel: float) -> None:
-        for d in link.dirs.values():
-            if d.cfg.outage and d.cfg.outage[-1][1] == math.inf:
-                start, _ = d.cfg.outage[-1]
-                d.cfg.outage[-1] = (start, rel - start)   # the datagram at `rel` passes
+    def _restore(d, rel: float) -> None:
+        if d.cfg.outage and d.cfg.outage[-1][1] == math.inf:
+            start, _ = d.cfg.outage[-1]
+            d.cfg.outage[-1] = (start, rel - start)   # the datagram at `rel` passes
 
     def write(self) -> None:
         with open(self.log_path, "w") as f:

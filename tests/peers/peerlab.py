@@ -23,7 +23,7 @@ from typing import Dict, List, Optional
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "integration"))
 
-from helpers import HOST, free_port, udp_client, udp_server  # noqa: E402
+from helpers import HOST, free_port, tcp_server, udp_client, udp_server  # noqa: E402
 from bonding_helpers import EmuGroup, Gateway  # noqa: E402
 
 VEHICLE = (1, 1)           # MAVSDK's autopilot: system 1, component 1
@@ -221,7 +221,8 @@ class Rig:
     renumber: the ground bond renumbers (dedup key: content), for a GCS counting loss."""
 
     def __init__(self, lab: PeerLab, mode: str, cuts: Optional[list] = None, *,
-                 params: int = 300, renumber: bool = False, name: Optional[str] = None):
+                 params: int = 300, renumber: bool = False, gcs_tcp: bool = False,
+                 name: Optional[str] = None):
         assert mode in ("clean", "dedup", "linkswitch")
         self.lab, self.mode, self.cuts = lab, mode, cuts or []
         self.name = name or mode
@@ -237,7 +238,9 @@ class Rig:
         self.status = {side: self.dir / f"{side}.sock" for side in ("air", "ground")}
         self.blob = ftp_blob(self.dir / "ftp-root" / "blob.bin")
         self.renumber = renumber
+        self.gcs_tcp = gcs_tcp
         self.vehicle: Optional[Process] = None
+        self.vehicle_summary: Optional[dict] = None
         self.gcs: Optional[Process] = None
         self.wire: Optional[PtyWire] = None
         self.emu: Optional[EmuGroup] = None
@@ -265,11 +268,15 @@ class Rig:
         return [f, {"plugin": "stats", "interval": "1s", "log": False}]
 
     def start(self) -> "Rig":
+        return self.start_links().start_vehicle()
+
+    def start_links(self) -> "Rig":
+        """Everything but the vehicle: ground gateway, links, wire, air gateway."""
         lab, p = self.lab, self.ports
         bonded = self.mode != "clean"
         member = {"bond": "vehicle"} if bonded else {}
         ground_eps = [udp_server(l, p[f"ground_{l}"], **member) for l in self.links]
-        ground_eps += [udp_server("gcs", p["gcs"]),
+        ground_eps += [(tcp_server if self.gcs_tcp else udp_server)("gcs", p["gcs"]),
                        {"name": "log", "type": "tlog", "directory": str(self.tlog_dirs["ground"])}]
         gbond = [{"name": "vehicle", "tx": "broadcast",
                   **({"renumber": True} if self.renumber else {})}] if bonded else []
@@ -299,12 +306,15 @@ class Rig:
         self.air = lab.gateway(air_eps, bonds=abond, filters=self._filters("ground", "air"),
                                name=f"{self.name}-air", status_socket=str(self.status["air"]))
         self.air.wait_log(r"\[uart:autopilot\] .* open at")
+        return self
+
+    def start_vehicle(self) -> "Rig":
         self.vehicle = Process(self.dir, "vehicle", [
             sys.executable, str(HERE / "mavsdk_vehicle.py"),
             "--url", f"serial://{self.wire.paths[0]}:{BAUD}", "--params", str(self.params),
             "--ftp-root", str(self.blob.parent), "--timeout", str(MAVSDK_TIMEOUT),
             "--max-seconds", "400"])
-        lab.procs.append(self.vehicle)
+        self.lab.procs.append(self.vehicle)
         self.vehicle.wait_line("event", "ready", 30)
         # The ground gateway knows each link's peer (the emulator) once the vehicle's first
         # frames came up it: only then does what the ground station sends go down every link.
@@ -336,21 +346,24 @@ class Rig:
 
     # --- the end -------------------------------------------------------------------------
 
-    def finish(self) -> None:
-        """Stops the vehicle, lets the links empty, reads both status sockets, stops the
-        gateways (their tlogs are then complete) and the emulator."""
-        if self.gcs is not None:
-            self.gcs.stop()
-        self.vehicle_summary = None
-        if self.vehicle is not None:
+    def stop_vehicle(self) -> None:
+        """Stops the vehicle and waits until the links carry nothing more."""
+        if self.vehicle is not None and self.vehicle_summary is None:
             self.vehicle.stop()
             self.vehicle_summary = next((d for d in self.vehicle.lines()
-                                         if d.get("event") == "summary"), None)
+                                         if d.get("event") == "summary"), {})
         deadline = time.monotonic() + 10
         while any(c[d]["in_flight"] for c in self.emu.counters_now().values()
                   for d in ("up", "down")):
             assert time.monotonic() < deadline, "the links never emptied"
             time.sleep(0.05)
+
+    def finish(self) -> None:
+        """Stops the ground station and the vehicle, lets the links empty, reads both status
+        sockets, stops the gateways (their tlogs are then complete) and the emulator."""
+        if self.gcs is not None:
+            self.gcs.stop()
+        self.stop_vehicle()
         self.status_docs = {side: status_document(path) for side, path in self.status.items()}
         for g in (self.air, self.ground):
             assert g.stop() == 0, g.log()[-3000:]
@@ -382,21 +395,29 @@ def link_drops(emu: EmuGroup, link: str, direction: str) -> set:
     return emu.dropped(link, direction)
 
 
-def gather(rig: Rig, renumbered: bool = False, steps: Optional[dict] = None) -> dict:
+def gather(rig: Rig, renumbered: bool = False, steps: Optional[dict] = None,
+           directions=("up", "down")) -> dict:
     """Both directions accounted and every protocol's retries judged, from the rig's logs;
     steps: the ground station's step lines (for the transfers it had to start again)."""
     from evidence import (Direction, frames_of, protocols, read_log, repeats)
     air, ground = read_log(rig.tlog_dirs["air"]), read_log(rig.tlog_dirs["ground"])
-    up = Direction("vehicle -> GCS", frames_of(air, VEHICLE), frames_of(ground, VEHICLE),
-                   {l: link_drops(rig.emu, l, "up") for l in rig.links},
-                   {l: rig.emu_counters[l]["up"]["received"] for l in rig.links},
-                   renumbered=renumbered).account()
-    down = Direction("GCS -> vehicle", frames_of(ground, GCS), frames_of(air, GCS),
-                     {l: link_drops(rig.emu, l, "down") for l in rig.links},
-                     {l: rig.emu_counters[l]["down"]["received"] for l in rig.links}).account()
-    attempts = {name: d["attempts"] for name, d in (steps or {}).items()
-                if name in ("params", "mission_upload", "mission_download", "ftp")
-                and len(d.get("attempts", ())) > 1}
-    return {"up": up, "down": down, "attempts": attempts,
-            "retries": protocols(down.sent, up.sent, fast="fast", attempts=attempts),
-            "repeats": repeats(up.sent, down.sent)}
+    out = {}
+    if "up" in directions:
+        out["up"] = Direction("vehicle -> GCS", frames_of(air, VEHICLE), frames_of(ground, VEHICLE),
+                              {l: link_drops(rig.emu, l, "up") for l in rig.links},
+                              {l: rig.emu_counters[l]["up"]["received"] for l in rig.links},
+                              renumbered=renumbered).account()
+    if "down" in directions:
+        out["down"] = Direction("GCS -> vehicle", frames_of(ground, GCS), frames_of(air, GCS),
+                                {l: link_drops(rig.emu, l, "down") for l in rig.links},
+                                {l: rig.emu_counters[l]["down"]["received"]
+                                 for l in rig.links}).account()
+    if len(out) == 2:
+        attempts = {name: d["attempts"] for name, d in (steps or {}).items()
+                    if name in ("params", "mission_upload", "mission_download", "ftp")
+                    and len(d.get("attempts", ())) > 1}
+        out["attempts"] = attempts
+        out["retries"] = protocols(out["down"].sent, out["up"].sent, fast="fast",
+                                   attempts=attempts)
+        out["repeats"] = repeats(out["up"].sent, out["down"].sent)
+    return out
