@@ -13,7 +13,8 @@ SPEC.json is linkemu's group spec. CUTS.json is a list of steps taken one after 
 
 A step fires on the `count`-th datagram carrying `msgid` (its first frame's) that arrives on
 link `on.link` in direction `on.dir` after the previous step fired (datagrams a cut link
-drops still arrive, so they count). `cut` drops everything on a link from the datagram after
+drops still arrive, so they count); with `"total": true` in `on`, counting from the start
+instead (if that many came before the previous step fired, on the next one). `cut` drops everything on a link from the datagram after
 the one that fires the step, in both directions, recorded in the drop logs with reason
 "outage" like linkemu's timed outages; `restore` ends a cut from the datagram that fires the
 step, which passes (see Cutter for how this holds across links). So where a cut falls in a
@@ -60,6 +61,7 @@ class Cutter:
         self.next = 0
         self.seen = 0
         self.pending: list = []      # [link, direction, action, first index]
+        self.totals: dict = {}       # (link, direction, msgid) -> datagrams so far
         self.done: list = []
         self.log_path = log_path
         for link in group.links:
@@ -69,6 +71,8 @@ class Cutter:
     def _wrap(self, link, direction, admit):
         def wrapped(data, now, rel, have_peer=True):
             i = direction.index                  # the index this datagram gets
+            key = (link.name, direction.name, msgid_of(data))
+            self.totals[key] = self.totals.get(key, 0) + 1
             step = self._match(link.name, direction.name, data)
             if step is not None:
                 for action, target in step["do"]:
@@ -95,7 +99,8 @@ class Cutter:
         if any(p[1] == direction for p in self.pending):
             return None                          # the previous step is still taking effect
         self.seen += 1
-        if self.seen < on["count"]:
+        done = self.totals[(link, direction, on["msgid"])] if on.get("total") else self.seen
+        if done < on["count"]:
             return None
         self.next += 1
         self.seen = 0

@@ -55,7 +55,7 @@ def bounded(step: str, limit: float, fn):
         try:
             box["value"] = fn()
         except BaseException as e:  # noqa: BLE001 - reported, not swallowed
-            box["error"] = f"{type(e).__name__}: {str(e)[:300]}"
+            box["error"] = f"{type(e).__name__}: {str(e).split('; params')[0][:300]}"
 
     t0 = time.monotonic()
     t = threading.Thread(target=run, daemon=True)
@@ -68,13 +68,17 @@ def bounded(step: str, limit: float, fn):
     return box.get("value"), box.get("error"), seconds
 
 
-def attempt(step: str, limit: float, fn, check, tries: int = 2):
+def attempt(step: str, limit: float, fn, check, tries: int = 2, settle: float = 0.0):
     """Up to `tries` attempts of fn(); check(result) -> None when good, else why not.
+    Before trying again, `settle` seconds: the vehicle's side of the failed transfer gives
+    up by then (MAVSDK: 5 timeouts), so the next one is not taken for part of it.
     Returns (result, ok, attempts, seconds of all)."""
     attempts = []
     total = 0.0
     result = None
-    for _ in range(tries):
+    for k in range(tries):
+        if k:
+            time.sleep(settle)
         start = time.time()
         result, error, seconds = bounded(step, limit, fn)
         total += seconds
@@ -110,6 +114,7 @@ def main() -> int:
     ap.add_argument("--step-limit", type=float, default=60.0)
     args = ap.parse_args()
     limit = args.step_limit
+    settle = 6 * (args.timeout or 0.5)
 
     mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
     if args.timeout:
@@ -145,7 +150,8 @@ def main() -> int:
         wrong = sorted(k for k in want if got.get(k) != want[k])
         return None if got == want else f"{len(got)} parameters, {len(wrong)} missing or wrong"
 
-    params, ok, attempts, seconds = attempt("params", limit, param.get_all_params, params_check)
+    params, ok, attempts, seconds = attempt("params", limit, param.get_all_params, params_check,
+                                              settle=settle)
     emit(step="params", ok=ok, seconds=seconds, attempts=attempts,
          count=len(params.int_params) if params else 0)
     if not ok:
@@ -154,7 +160,8 @@ def main() -> int:
     mission = MissionRaw(system)
     items = mission_items(args.mission)
     _, ok, attempts, seconds = attempt("mission_upload", limit,
-                                       lambda: mission.upload_mission(items), lambda _: None)
+                                       lambda: mission.upload_mission(items), lambda _: None,
+                                       settle=settle)
     emit(step="mission_upload", ok=ok, seconds=seconds, attempts=attempts, items=len(items))
     if not ok:
         return 1
@@ -165,7 +172,7 @@ def main() -> int:
         return None
 
     back, ok, attempts, seconds = attempt("mission_download", limit, mission.download_mission,
-                                          same)
+                                          same, settle=settle)
     emit(step="mission_download", ok=ok, seconds=seconds, attempts=attempts,
          items=len(back) if back else 0)
     if not ok:
@@ -206,7 +213,7 @@ def main() -> int:
                 return "the file differs"
         return None
 
-    _, ok, attempts, seconds = attempt("ftp", limit, download, ftp_check)
+    _, ok, attempts, seconds = attempt("ftp", limit, download, ftp_check, settle=settle)
     emit(step="ftp", ok=ok, seconds=seconds, attempts=attempts,
          bytes=os.path.getsize(local) if os.path.exists(local) else 0, identical=ok)
     if not ok:

@@ -5,7 +5,7 @@ ground-side mavbond, and a ground station (MAVSDK's clients, or MAVProxy) on UDP
 gateway writes a flight log (a tlog endpoint): the air one holds exactly what the vehicle
 sent and what was delivered to it, the ground one what the ground station sent and what was
 delivered to it. Those two logs and the emulator's drop records are the evidence the tests
-judge by; nothing is judged by the clock."""
+judge by; nothing is judged by how long anything took."""
 from __future__ import annotations
 
 import json
@@ -39,6 +39,7 @@ SEEDS = {"fast": 1301, "slow": 1302, "clean": 1303}
 # so a retry means a lost frame, never a slow one (MAVSDK's mission server stores an item it
 # gets twice twice: a retry for a late answer would corrupt the mission).
 MAVSDK_TIMEOUT = 1.5
+ATTITUDE = 30              # the vehicle publishes it at 20 Hz (mavsdk_vehicle.RATES)
 
 
 class PtyWire:
@@ -172,6 +173,7 @@ class PeerLab:
         self.gateways: List[Gateway] = []
         self.emus: List[EmuGroup] = []
         self.procs: List[Process] = []
+        self.wires: List[PtyWire] = []
 
     def gateway(self, endpoints, bonds=(), filters=(), name="mavbond", **top) -> Gateway:
         g = Gateway(self.binary, self.workdir, endpoints, bonds, filters, name=name,
@@ -186,31 +188,34 @@ class PeerLab:
             g.kill()
         for e in self.emus:
             e.kill()
+        for w in self.wires:
+            w.close()
 
 
-def cut_plan() -> list:
-    """Where the links are cut (tests/peers/cutlinks.py steps), by each transfer's own
-    messages as they reach a link (up: the vehicle's; a cut link still receives them):
-
-    in the middle of each transfer the fast link is cut; once `n` more of the transfer's
-    messages have reached it, it comes back and the slow link is cut instead; once `n` of
-    them have reached the slow link, that comes back too. So each transfer loses each link in
-    turn while it runs: dedup must carry on over the other link; linkswitch must move to the
-    other link (when the cut outlasts its switch_after) and back again."""
-    def transfer(msgid: int, middle: int, n: int) -> list:
+def cut_plan(hold: int = 60) -> list:
+    """Where the links are cut (tests/peers/cutlinks.py steps). In the middle of each
+    transfer, by its own messages as they reach the fast link (the vehicle's: a cut link
+    still receives them), the fast link is cut; after `hold` of the vehicle's ATTITUDE
+    messages (20 Hz: 3 s, longer than either gateway's linkswitch takes to move) it comes
+    back and the slow link is cut instead; `hold` ATTITUDEs later that comes back too. So
+    each transfer loses each link in turn while it runs: dedup must carry on over the other
+    link; linkswitch must move to the other link and back again. The time a cut lasts is the
+    vehicle's telemetry's, so every cut ends whatever becomes of the transfer."""
+    def transfer(msgid: int, middle: int) -> list:
         return [
-            {"on": {"link": "fast", "dir": "up", "msgid": msgid, "count": middle},
+            {"on": {"link": "fast", "dir": "up", "msgid": msgid, "count": middle,
+                    "total": True},
              "do": [["cut", "fast"]]},
-            {"on": {"link": "fast", "dir": "up", "msgid": msgid, "count": n},
+            {"on": {"link": "fast", "dir": "up", "msgid": ATTITUDE, "count": hold},
              "do": [["restore", "fast"], ["cut", "slow"]]},
-            {"on": {"link": "slow", "dir": "up", "msgid": msgid, "count": n},
+            {"on": {"link": "slow", "dir": "up", "msgid": ATTITUDE, "count": hold},
              "do": [["restore", "slow"]]},
         ]
     PARAM_VALUE, MISSION_REQUEST_INT, MISSION_ITEM_INT, FTP = 22, 51, 73, 110
-    return (transfer(PARAM_VALUE, 150, 10)            # of 300 parameters
-            + transfer(MISSION_REQUEST_INT, 50, 5)    # upload: the vehicle asks for 100 items
-            + transfer(MISSION_ITEM_INT, 50, 5)       # download: the vehicle sends 100 items
-            + transfer(FTP, 550, 20))                 # 256 KiB: about 1,100 chunks
+    return (transfer(PARAM_VALUE, 150)            # of 300 parameters
+            + transfer(MISSION_REQUEST_INT, 50)   # upload: the vehicle asks for 100 items
+            + transfer(MISSION_ITEM_INT, 50)      # download: the vehicle sends 100 items
+            + transfer(FTP, 550))                 # 256 KiB: about 1,100 chunks
 
 
 class Rig:
@@ -297,6 +302,7 @@ class Rig:
         lab.emus.append(self.emu)
         self.emu.start()
         self.wire = PtyWire()
+        lab.wires.append(self.wire)
         amember = {"bond": "ground"} if bonded else {}
         air_eps = [{"name": "autopilot", "type": "uart", "device": self.wire.paths[1],
                     "baud": BAUD}]
