@@ -2,7 +2,7 @@
 """A ground station made of MAVSDK's client plugins (PyPI `mavsdk`), running the workload of
 tests/peers against a vehicle (tests/peers/mavsdk_vehicle.py) wherever it is:
 
-    mavsdk_gcs.py --url udpout://127.0.0.1:P --params 300 --mission 100 \
+    mavsdk_gcs.py --url tcpout://127.0.0.1:P --params 300 --mission 100 \
         --ftp-file /blob.bin --ftp-expect DIR/blob.bin --download-dir DIR
 
 Steps, in this order: find the autopilot, subscribe to its telemetry, download every

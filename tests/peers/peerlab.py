@@ -1,7 +1,7 @@
 """The setup of tests/peers: an independent vehicle (MAVSDK's server components) on a UART
 (a pseudo-terminal pair joined to mavbond's by a null-modem wire), an air-side mavbond, two
 emulated links (tests/peers/cutlinks.py: linkemu with cuts that follow the traffic), a
-ground-side mavbond, and a ground station (MAVSDK's clients, or MAVProxy) on UDP. Each
+ground-side mavbond, and a ground station (MAVSDK's clients, or MAVProxy) on TCP. Each
 gateway writes a flight log (a tlog endpoint): the air one holds exactly what the vehicle
 sent and what was delivered to it, the ground one what the ground station sent and what was
 delivered to it. Those two logs and the emulator's drop records are the evidence the tests
@@ -226,8 +226,7 @@ class Rig:
     renumber: the ground bond renumbers (dedup key: content), for a GCS counting loss."""
 
     def __init__(self, lab: PeerLab, mode: str, cuts: Optional[list] = None, *,
-                 params: int = 300, renumber: bool = False, gcs_tcp: bool = False,
-                 name: Optional[str] = None):
+                 params: int = 300, renumber: bool = False, name: Optional[str] = None):
         assert mode in ("clean", "dedup", "linkswitch")
         self.lab, self.mode, self.cuts = lab, mode, cuts or []
         self.name = name or mode
@@ -243,7 +242,6 @@ class Rig:
         self.status = {side: self.dir / f"{side}.sock" for side in ("air", "ground")}
         self.blob = ftp_blob(self.dir / "ftp-root" / "blob.bin")
         self.renumber = renumber
-        self.gcs_tcp = gcs_tcp
         self.vehicle: Optional[Process] = None
         self.vehicle_summary: Optional[dict] = None
         self.gcs: Optional[Process] = None
@@ -281,7 +279,10 @@ class Rig:
         bonded = self.mode != "clean"
         member = {"bond": "vehicle"} if bonded else {}
         ground_eps = [udp_server(l, p[f"ground_{l}"], **member) for l in self.links]
-        ground_eps += [(tcp_server if self.gcs_tcp else udp_server)("gcs", p["gcs"]),
+        # The ground station is on TCP: a UDP socket of its default size overflows under a
+        # burst (300 parameters at once), and that loss would be the station's, not the
+        # bond's. What the gateway holds for it may be a whole FTP burst (36 KB).
+        ground_eps += [tcp_server("gcs", p["gcs"], tx_queue="1MiB"),
                        {"name": "log", "type": "tlog", "directory": str(self.tlog_dirs["ground"])}]
         gbond = [{"name": "vehicle", "tx": "broadcast",
                   **({"renumber": True} if self.renumber else {})}] if bonded else []
@@ -339,7 +340,7 @@ class Rig:
         """The MAVSDK ground station's workload; {"rc", "steps": {step: its line}, "tail"}."""
         self.gcs = Process(self.dir, "gcs", [
             sys.executable, str(HERE / "mavsdk_gcs.py"),
-            "--url", f"udpout://{HOST}:{self.ports['gcs']}", "--params", str(self.params),
+            "--url", f"tcpout://{HOST}:{self.ports['gcs']}", "--params", str(self.params),
             "--mission", "100", "--ftp-file", "/blob.bin", "--ftp-expect", str(self.blob),
             "--download-dir", str(self.dir / "download"), "--timeout", str(MAVSDK_TIMEOUT),
             "--step-limit", "120"])
@@ -365,18 +366,55 @@ class Rig:
             time.sleep(0.05)
 
     def finish(self) -> None:
-        """Stops the ground station and the vehicle, lets the links empty, reads both status
-        sockets, stops the gateways (their tlogs are then complete) and the emulator."""
+        """Stops the ground station; once every cut step was taken (they follow the vehicle's
+        telemetry, so they are, seconds later), the vehicle; lets the links empty, reads both
+        status sockets, stops the gateways (their tlogs are then complete) and the emulator;
+        keeps the gateways' counters at exit (`exit_stats`)."""
         if self.gcs is not None:
             self.gcs.stop()
+        deadline = time.monotonic() + 30
+        while self.cuts and len(self.cuts_taken()) < len(self.cuts):
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
         self.stop_vehicle()
         self.status_docs = {side: status_document(path) for side, path in self.status.items()}
         for g in (self.air, self.ground):
             assert g.stop() == 0, g.log()[-3000:]
+        self.exit_stats = {side: exit_stats(g) for side, g in
+                           (("air", self.air), ("ground", self.ground))}
         self.emu_counters = self.emu.stop()
         self.wire.close()
-        self.cuts_done = ([json.loads(l) for l in self.cut_log.read_text().splitlines() if l]
-                          if self.cut_log.exists() else [])
+        self.cuts_done = self.cuts_taken()
+
+    def cuts_taken(self) -> List[dict]:
+        if not self.cut_log.exists():
+            return []
+        text = self.cut_log.read_text()
+        return [json.loads(l) for l in text[:text.rfind("\n") + 1].splitlines() if l]
+
+    def dropped_inside(self) -> Dict[str, dict]:
+        """Endpoints that dropped or lost frames inside a gateway (a full transmit queue, an
+        overflowing socket, bytes that were no frame), from the counters at exit: then a
+        frame in a tlog was not really delivered, or one sent never got in."""
+        out = {}
+        for side, eps in self.exit_stats.items():
+            for name, c in eps.items():
+                bad = {k: c.get(k, 0) for k in ("tx_dropped", "tx_errors", "rx_overflows",
+                                                  "crc_errors", "garbage_bytes")
+                       if c.get(k, 0)}
+                if bad:
+                    out[f"{side}:{name}"] = bad
+        return out
+
+
+def exit_stats(g: Gateway) -> Dict[str, dict]:
+    """{endpoint: counters} from the lines a gateway logs when it stops (a TCP server's
+    clients are endpoints of their own, "gcs@127.0.0.1:PORT")."""
+    from helpers import parse_stats
+    log = g.log()
+    tail = log[log.rfind("stopping"):]
+    return {d["endpoint"]: d for d in parse_stats(tail)}
 
 
 def status_document(path: Path, timeout: float = 5.0) -> dict:

@@ -1,6 +1,6 @@
 """An independent MAVLink stack at both ends of the bond: MAVSDK (PyPI `mavsdk`: its C++
 library) as the vehicle, on a UART (a pseudo-terminal) behind an air-side mavbond, and as the
-ground station, on UDP at a ground-side mavbond. Between the gateways two emulated links
+ground station, on TCP at a ground-side mavbond. Between the gateways two emulated links
 (tests/tools/linkemu.py, seeded), each losing 5 %, the slow one 300 ms behind the fast one.
 
 The ground station downloads 300 parameters, uploads a 100-item mission and reads it back,
@@ -161,6 +161,8 @@ def check_completed(o: Outcome) -> None:
     assert any(d.get("event") == "takeoff" for d in vehicle), vehicle
     received = steps["telemetry"]["received"]
     assert all(received[k] > 0 for k in ("position", "attitude", "battery")), received
+    # What the tlogs say was delivered was: no gateway dropped a frame on the way.
+    assert not o.rig.dropped_inside(), o.rig.dropped_inside()
 
 
 def test_one_clean_link_is_the_reference(runs):
