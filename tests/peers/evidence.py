@@ -1,7 +1,10 @@
 """What crossed the bond, from the records alone: the two gateways' flight logs (what each
 end sent, what was delivered to it) and the emulator's drop records (which datagrams each
-link lost). Nothing here reads a clock to decide; times from one gateway's log are only
-compared with times from the same log.
+link lost). Nothing is judged by how long anything took: times give order only, within one
+gateway's log (which answer came before which retry), and across the two logs (stamped from
+the same clock) only where the order is beyond doubt: a frame is delivered a link's delay,
+10 ms at least, after it was sent, and a transfer MAVSDK gave up on ended seconds before the
+ground station began it again.
 
 Two questions are answered:
 
@@ -28,7 +31,7 @@ import sys
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import tlog  # noqa: E402
@@ -41,7 +44,7 @@ ARM, TAKEOFF = 400, 22
 
 @dataclass
 class Frame:
-    t: float            # the gateway's log time (s), comparable within one log only
+    t: float            # when its gateway logged it (s, the machine's clock)
     raw: bytes
     msg: object         # pymavlink message
     src: Tuple[int, int]

@@ -21,7 +21,6 @@ leaving MAVSDK's threads behind."""
 from __future__ import annotations
 
 import argparse
-import ctypes
 import hashlib
 import json
 import os
@@ -30,7 +29,6 @@ import threading
 import time
 
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
-from mavsdk.cmavsdk_loader import _cmavsdk_lib
 from mavsdk.plugins.action import Action
 from mavsdk.plugins.ftp import Ftp
 from mavsdk.plugins.mission_raw import MissionItem, MissionRaw

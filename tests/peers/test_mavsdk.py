@@ -25,13 +25,11 @@ gateways' flight logs and the emulator's drop records, never from the clock):
     clean link has too."""
 from __future__ import annotations
 
-import json
 import os
 import re
 import threading
 import time
 import traceback
-from pathlib import Path
 
 import pytest
 
