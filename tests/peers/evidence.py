@@ -19,6 +19,8 @@ Two questions are answered:
      lost     that attempt, or every answer to it, was lost on every link;
      late     it was answered, but that attempt or an answer to it was lost on the faster
               link (the emulator's record), so it came by the slower one, 300 ms later;
+     (a retry that left before any answer to that attempt came back is judged as that
+              attempt was: both come from the same earlier loss)
      unexplained  otherwise: every frame of that attempt came the fast way, yet the
               requester asked again; or the responder never answered a request it got. The
               bond caused it (a duplicate set a protocol back, an answer held up), or a peer
@@ -206,38 +208,54 @@ def judge(ex: Exchange, fast: str = "fast") -> RetryCount:
             first = ex.implied_by(key, seq[0])
             if first is not None:
                 seq = [first] + seq
+        verdicts: List[str] = ["first"]
         for j in range(1, len(seq)):
-            prev, retry = seq[j - 1], seq[j]
+            verdict, why = _verdict(ex, key, seq, j, answers[key], verdicts, fast)
+            verdicts.append(verdict)
             out.retries += 1
-            if prev.lost:
+            if verdict == "lost":
                 out.lost += 1
-                continue
-            # The answers to `prev`: those the responder sent after it had `prev` and before
-            # it had the next attempt that reached it (all later ones if none did). Times of
-            # the responder's gateway's log only.
-            lo = prev.delivered_at
-            hi = next((a.delivered_at for a in seq[j:] if a.delivered_at is not None),
-                      float("inf"))
-            mine = [a for a in answers[key] if lo <= a.t < hi]
-            if not mine:
-                out.unexplained.append(f"{ex.name} {key}: the request sent at {prev.t:.3f} "
-                                       f"reached the responder, which did not answer it")
-            elif all(a.lost for a in mine):
-                out.lost += 1
-            elif fast in prev.dropped_on or any(fast in a.dropped_on for a in mine):
+            elif verdict == "late":
                 out.late += 1
-                out.late_cases.append(
-                    f"{ex.name} {key}: " + ("the request" if fast in prev.dropped_on else
-                                            "an answer") + f" lost on {fast} (attempt at "
-                    f"{prev.t:.3f}, answers at " + ", ".join(
-                        "lost" if a.lost else f"{a.delivered_at:.3f}" for a in mine) + ")")
+                out.late_cases.append(why)
             else:
-                out.unexplained.append(
-                    f"{ex.name} {key}: asked again at {retry.t:.3f} although the request of "
-                    f"{prev.t:.3f} and its answer came the fast way (answered at "
-                    f"{min(a.delivered_at for a in mine if not a.lost):.3f}, the requester's "
-                    f"gateway's log)")
+                out.unexplained.append(why)
     return out
+
+
+def _verdict(ex: Exchange, key, seq: List[Frame], j: int, answers: List[Frame],
+             verdicts: List[str], fast: str) -> Tuple[str, str]:
+    """lost, late or unexplained, with why, for attempt j judged by attempt j - 1."""
+    prev, retry = seq[j - 1], seq[j]
+    where = f"{ex.name} {key}"
+    if prev.lost:
+        return "lost", where
+    if fast in prev.dropped_on:
+        return "late", f"{where}: the request of {prev.t:.3f} was lost on {fast}"
+    # The answers to `prev`: those the responder sent after it had `prev` and before it had
+    # a later attempt (all later ones if none came after). Times of the responder's log.
+    lo = prev.delivered_at
+    hi = min((a.delivered_at for a in seq[j:] if a.delivered_at is not None
+              and a.delivered_at > lo), default=float("inf"))
+    mine = [a for a in answers if lo <= a.t < hi]
+    if not mine:
+        return "unexplained", (f"{where}: the request sent at {prev.t:.3f} reached the "
+                               f"responder, which did not answer it")
+    got = [a for a in mine if not a.lost]
+    if not got:
+        return "lost", where
+    if any(fast in a.dropped_on for a in mine):
+        return "late", (f"{where}: an answer to the request of {prev.t:.3f} was lost on "
+                        f"{fast}")
+    first_back = min(a.delivered_at for a in got)
+    if first_back > retry.t and j >= 2:
+        # The retry left before any answer to `prev` came back (the requester's gateway's
+        # log): `prev` did not cause it; it is what `prev` was, a consequence of the same
+        # earlier loss (MAVSDK asks again both on a timeout and on a repeated answer).
+        return verdicts[j - 1], f"{where}: crossed the answer to the request of {prev.t:.3f}"
+    return "unexplained", (f"{where}: asked again at {retry.t:.3f} although the request of "
+                           f"{prev.t:.3f} and its answer came the fast way (answered at "
+                           f"{first_back:.3f}, the requester's gateway's log)")
 
 
 def ftp_fields(msg) -> Tuple[int, int, int, int, int]:
