@@ -12,8 +12,9 @@ DEB_PACKAGES=(g++ meson ninja-build pkgconf libyaml-cpp-dev libboost-dev libgtes
 # A script that needs more sets TEST_DEB_PACKAGES before sourcing this file (scripts/test).
 DEB_PACKAGES+=(${TEST_DEB_PACKAGES[@]+"${TEST_DEB_PACKAGES[@]}"})
 # One line: scripts/package reads it. matplotlib draws scripts/compare's plots; prometheus-client
-# parses /metrics in tests/integration/test_metrics.py.
-PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 matplotlib==3.10.8 prometheus-client==0.26.0)
+# parses /metrics in tests/integration/test_metrics.py; mavsdk (a wheel with MAVSDK's C++
+# library) and MAVProxy are the independent MAVLink stacks of tests/peers.
+PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 matplotlib==3.10.8 prometheus-client==0.26.0 mavsdk==4.1.0 MAVProxy==1.8.75)
 
 say() { printf '==> %s\n' "$*" >&2; }
 
