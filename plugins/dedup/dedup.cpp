@@ -140,6 +140,8 @@ struct Lane {
     uint8_t tentative;       // time chose the alignment among several: a unique key may overrule it
     uint8_t contradictions;  // unique keys in a row found elsewhere than the alignment says
     int64_t offset;          // bond position = link position + offset
+    uint64_t tentative_since;  // when the tentative alignment began
+    int64_t head_before;       // the stream's head then
     int64_t proposed;        // the offset those contradictions agree on
     int64_t last_link_pos;   // the link's highest position of the stream so far
     int64_t last_bond_pos;
@@ -254,8 +256,8 @@ private:
     uint32_t stream_of(uint32_t bond, uint8_t sysid, uint8_t compid);
     Lane& lane_of(const Arrival& a);
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
-    /// Whether the link may have missed more than kAmbiguousStep frames since its last one.
-    bool after_outage(const Lane& lane, const Stream& s, uint64_t t) const;
+    /// Whether the link was silent long enough to miss kAmbiguousStep frames, at the rate.
+    bool silent_for_a_turn(const Lane& lane, const Stream& s, uint64_t t) const;
     /// Whether key entry `e` has an instance of the arrival's stream its link has not had.
     bool unseen_instance(const Arrival& a, uint32_t e) const;
     /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place.
@@ -263,6 +265,13 @@ private:
     Verdict copy_of(const Arrival& a, uint32_t rec);
     /// Aligns a link's lane; a changed alignment is logged with `why`.
     void set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why);
+    /// Marks a lane's alignment as chosen by time (or standing without evidence) from now on.
+    void mark_tentative(const Arrival& a, Lane& lane);
+    /// Moves record `rec`, placed by its first link's tentative alignment, to `pos`, and with
+    /// it that link's alignment and the frames it alone delivered since it began.
+    void move_tentative(const Arrival& a, uint32_t rec, int64_t pos);
+    /// Whether only its first link had record `r`, placed by a tentative alignment.
+    bool placed_by_time_alone(const Arrival& a, const Record& r);
     void learn_lag(Member& m, int64_t skew_ns);
     /// Remembers a new frame; `e`: its key's entry as decide() found it (kNone: none yet).
     void remember(const Arrival& a, Key key, int64_t pos, uint32_t e);
@@ -629,10 +638,7 @@ Lane& Dedup::lane_of(const Arrival& a) {
     return lane;
 }
 
-bool Dedup::after_outage(const Lane& lane, const Stream& s, uint64_t t) const {
-    if (s.head - lane.head_then >= kAmbiguousStep)
-        return true;  // the other links moved the stream that far meanwhile
-    // The link may be the one ahead of the others: its silence, at the source's rate.
+bool Dedup::silent_for_a_turn(const Lane& lane, const Stream& s, uint64_t t) const {
     return s.ns_per_frame != 0 &&
            t - lane.last_t >= static_cast<uint64_t>(kAmbiguousStep) * s.ns_per_frame;
 }
@@ -655,6 +661,61 @@ void Dedup::set_alignment(const Arrival& a, Lane& lane, int64_t offset, const ch
     lane.offset = offset;
     lane.contradictions = 0;
     lane.tentative = 0;
+}
+
+void Dedup::mark_tentative(const Arrival& a, Lane& lane) {
+    if (lane.tentative)
+        return;
+    lane.tentative = 1;
+    lane.tentative_since = a.t;
+    lane.head_before = streams_[a.stream].head;
+}
+
+bool Dedup::placed_by_time_alone(const Arrival& a, const Record& r) {
+    const Lane& first = lanes_[size_t{a.stream} * kMaxMembers + r.first_member];
+    return first.generation == member_of(a.bond, r.first_member).generation && first.aligned &&
+           first.tentative && r.seen == (1u << r.first_member) && r.t0 >= first.tentative_since &&
+           r.pos == r.link_pos + first.offset;
+}
+
+void Dedup::move_tentative(const Arrival& a, uint32_t rec, int64_t pos) {
+    const uint32_t fm = ring_[rec].first_member;
+    Lane& lane = lanes_[size_t{a.stream} * kMaxMembers + fm];
+    const int64_t old_offset = lane.offset, offset = pos - ring_[rec].link_pos;
+    const uint64_t since = lane.tentative_since;
+    Stream& s = streams_[a.stream];
+    int64_t head = lane.head_before;
+    Arrival at_first = a;
+    at_first.member = fm;
+    at_first.link_id = ring_[rec].first_link_id;
+    set_alignment(at_first, lane, offset, "a link that never left has its frame elsewhere");
+    // What the link alone placed since is at the ring's tail (arrival order). All of it is
+    // taken out before any is put back, so no moved frame finds another's old place taken.
+    auto since_then = [&](auto fn) {
+        for (uint32_t i = ring_count_; i-- > 0;) {
+            uint32_t r = ring_head_ + i >= capacity_ ? ring_head_ + i - capacity_ : ring_head_ + i;
+            if (ring_[r].t0 < since)
+                break;
+            if (ring_[r].stream == a.stream)
+                fn(r, ring_[r], ring_[r].first_member == fm && ring_[r].seen == (1u << fm));
+        }
+    };
+    since_then([&](uint32_t r, Record& x, bool alone) {
+        if (alone && x.pos == x.link_pos + old_offset) {
+            unplace(r);
+            x.pos = x.link_pos + offset;
+        }
+    });
+    since_then([&](uint32_t r, Record& x, bool alone) {
+        if (alone && x.pos == x.link_pos + offset) {
+            if (at(a.stream, x.pos) == kNone)
+                place(r);
+            else
+                x.pos = kUnknownPos;  // taken after all: placed when a copy comes
+        }
+        head = std::max(head, x.pos);  // the stream's head, were it carried too far
+    });
+    s.head = std::min(s.head, head);
 }
 
 void Dedup::learn_lag(Member& m, int64_t skew_ns) {
@@ -769,7 +830,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
             // the stream's head, until a unique key says otherwise.
             v.pos = s.head + 1;
             set_alignment(a, lane, v.pos - a.link_pos, why);
-            lane.tentative = 1;
+            mark_tentative(a, lane);
             return v;
         }
         // Not placed yet: the frame is new, and its position is learned when another link's
@@ -779,7 +840,7 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     }
     set_alignment(a, lane, best_pos - a.link_pos, why ? why : "its first frames");
     if (options > 1) {
-        lane.tentative = 1;
+        mark_tentative(a, lane);
         member_of(a.bond, a.member).by_time += by_time ? 1 : 0;
     }
     if (best_rec != kNone)
@@ -805,19 +866,21 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         return align(a, lane, find(a.bond, key), nullptr);
     if (flags & MAVBOND_STREAM_RESYNC)
         return align(a, lane, find(a.bond, key), "its numbering restarted");
-    // A link that may have missed 128 frames or more (the others moved the stream that far,
-    // or it was silent that long): its step modulo 256 is ambiguous, and it is placed anew
-    // (identity first, then time). Yet a link that merely lags behind a burst the others
-    // delivered looks the same, and its frames continue where its last one was: when the
-    // position its alignment gives is free and its key was delivered nowhere, nothing says
-    // otherwise, and the alignment stands, tentatively (placing it by time instead, with the
-    // source's rate thrown by the burst, put the link's next frames where their copies were
-    // not, and delivered them twice).
-    if (after_outage(lane, s, a.t)) {
+    // A link that may have missed 128 frames or more (silent that long at the source's rate,
+    // or the others moved the stream that far): its step modulo 256 is ambiguous, and it is
+    // placed anew (identity first, then time). Yet a link that merely lags behind a burst the
+    // others delivered, never silent, looks the same by positions, and its frames continue
+    // where its last one was: when the position its alignment gives is free and its key was
+    // delivered nowhere, nothing says otherwise, and the alignment stands, tentatively
+    // (placing it by time instead, with the source's rate thrown by the burst, put the link's
+    // next frames where their copies were not, and delivered them twice).
+    const bool silent = silent_for_a_turn(lane, s, a.t);
+    if (silent || s.head - lane.head_then >= kAmbiguousStep) {
         uint32_t e = find(a.bond, key);
-        if (at(a.stream, a.link_pos + lane.offset) != kNone || (e != kNone && unseen_instance(a, e)))
+        if (silent || at(a.stream, a.link_pos + lane.offset) != kNone ||
+            (e != kNone && unseen_instance(a, e)))
             return align(a, lane, e, "an outage of 128 frames or more");
-        lane.tentative = 1;
+        mark_tentative(a, lane);
     }
 
     Verdict v;
@@ -826,8 +889,12 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     if (held != kNone) {
         if (ring_[held].h1 == key.h1 && ring_[held].h2 == key.h2) {
             lane.contradictions = 0;
-            if (a.unique)
-                lane.tentative = 0;  // a unique key confirms the alignment
+            if (a.unique) {  // a unique key confirms the alignment, and the first copy's
+                Lane& first = lanes_[size_t{a.stream} * kMaxMembers + ring_[held].first_member];
+                if (!lane.tentative)
+                    first.tentative = 0;
+                lane.tentative = 0;
+            }
             return copy_of(a, held);  // the bond delivered this very position
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
@@ -870,7 +937,13 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         // wrong. A signature settles it at once, and so does any unique key against an
         // alignment time chose; otherwise two such frames in a row agreeing on one do.
         uint32_t rec = en.rec[elsewhere];
-        int64_t offset = ring_[rec].pos - a.link_pos;
+        const Record& r = ring_[rec];
+        if (!lane.tentative && placed_by_time_alone(a, r)) {
+            // Time placed it, and this link never left: its position is the evidence.
+            move_tentative(a, rec, v.pos);
+            return copy_of(a, rec);
+        }
+        int64_t offset = r.pos - a.link_pos;
         if (a.is_signed || lane.tentative ||
             (lane.contradictions > 0 && lane.proposed == offset)) {
             set_alignment(a, lane, offset, "a unique frame the bond has at another position");

@@ -605,6 +605,38 @@ INSTANTIATE_TEST_SUITE_P(
         return n;
     });
 
+class DedupLinksAlikeTest : public DedupTest, public ::testing::WithParamInterface<uint32_t> {};
+
+TEST_P(DedupLinksAlikeTest, TheFirstFrameBackFromALongOutageIsPlacedByTime) {
+    // Found by the integration test of a 15 s outage (tests/integration/test_bonding.py): two
+    // links alike (20 ms), 124 frames/s, link a out for 15 s. Its first frame back, a status
+    // message (no timestamp, its bytes not in the window), often came before b's copy: with
+    // nothing delivered to say otherwise, a kept its old place, 7 turns of 256 behind, and b's
+    // copy passed as a new frame. A link silent for a turn of the sequence at the source's
+    // rate is placed by time. Every 8th frame such a status message (its content counts on),
+    // the others timestamped samples; both links lose 1 %.
+    ASSERT_TRUE(create("window: 2s\ndrop_stale: false"));
+    const int count = 124 * 21;
+    std::vector<Bytes> frames;
+    for (int i = 0; i < count; i++) {
+        auto seq = static_cast<uint8_t>(i);
+        if (i % 8 == 7)
+            frames.push_back(v2(seq, 1, {static_cast<uint8_t>(i / 8), static_cast<uint8_t>(i / 2048)}));
+        else
+            frames.push_back(v2(seq, kAttitude, attitude_payload(static_cast<uint32_t>(i) * 8)));
+    }
+    const int out = 124 * 3, back = 124 * 18 + 7;  // a's first frame back is a status message
+    auto arrivals = simulate(count, now(), 8 * kMs,
+                             {{20 * kMs, 3 * kMs, 0.01, false, {out, back}}, {20 * kMs, 3 * kMs, 0.01}},
+                             GetParam());
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t at) { return feed(l, f, at); });
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+}
+
+INSTANTIATE_TEST_SUITE_P(Seeds, DedupLinksAlikeTest, ::testing::Range(1u, 21u));
+
 // Found with MAVSDK's 300-parameter list through a bond whose second link is 300 ms behind:
 // the fast link delivers the whole burst between two frames of the slow one, so the stream
 // moves more than 128 positions "while the slow link was silent"; the slow link's next frame,
@@ -655,6 +687,66 @@ TEST_F(DedupTest, ALinkLaggingBehindABurstKeepsItsPlace) {
     for (const std::string& line : host_.logs)
         EXPECT_EQ(std::string::npos, line.find("aligned anew")) << line;
 }
+
+/// (burst frames, ms into the cut it comes, the slow link's lag in ms)
+class DedupHandOverTest
+    : public DedupTest,
+      public ::testing::WithParamInterface<std::tuple<uint32_t, uint64_t, uint64_t>> {};
+
+TEST_P(DedupHandOverTest, ALinkBackFromACutIsPlacedByTheLinkThatNeverLeft) {
+    // The real-peers cut (tests/peers): the fast link is cut for 3 s while a burst crosses the
+    // slow one, then comes back just as the slow link is cut in turn; both lose 5 %. The fast
+    // link's first frames are new, and time places them among turns of 256 with a rate the
+    // burst threw off; the slow link's copies still in flight come from a lane that never
+    // left. Its positions are the evidence: the fast link is placed by them (with what it
+    // delivered meanwhile), not the slow link by the fast one's guess. Before, 16 of these 60
+    // cases passed a frame twice (the peers stage: an ATTITUDE to the GCS). Every frame once.
+    struct Sent {
+        uint64_t t;
+        Bytes frame;
+    };
+    const auto [burst, burst_at_ms, lag_ms] = GetParam();
+    ASSERT_TRUE(create("window: 2s\nstale_after: 1s"));
+    std::vector<Sent> sent;
+    const uint64_t start = now();
+    uint64_t t = start;
+    uint8_t seq = 0;
+    uint32_t k = 0;
+    const uint64_t cut = start + 2 * 1000 * kMs;
+    auto telemetry_until = [&](uint64_t end) {
+        for (; t < end; t += 28 * kMs, k++)  // 35 Hz telemetry
+            sent.push_back({t, v2(seq++, kAttitude, attitude_payload(k * 28))});
+    };
+    telemetry_until(cut + burst_at_ms * kMs);
+    for (uint32_t p = 0; p < burst; p++)  // a parameter list, at once
+        sent.push_back({t, v2(seq++, 22, {static_cast<uint8_t>(p), static_cast<uint8_t>(p >> 8)})});
+    telemetry_until(cut + 9000 * kMs);
+    std::vector<Arrival> arrivals;
+    std::mt19937 rng(burst * 7919 + burst_at_ms * 31 + lag_ms);
+    std::bernoulli_distribution lose(0.05);
+    for (size_t i = 0; i < sent.size(); i++) {
+        uint64_t s = sent[i].t;
+        if ((s < cut || s >= cut + 3000 * kMs) && !lose(rng))  // a: cut for 3 s
+            arrivals.push_back({s + 5 * kMs, 0, static_cast<int>(i)});
+        if ((s < cut + 3000 * kMs || s >= cut + 6000 * kMs) && !lose(rng))  // then b for 3 s
+            arrivals.push_back({s + lag_ms * kMs, 1, static_cast<int>(i)});
+    }
+    std::stable_sort(arrivals.begin(), arrivals.end(),
+                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
+    std::vector<Bytes> frames;
+    for (const Sent& x : sent)
+        frames.push_back(x.frame);
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t at) { return feed(l, f, at); });
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    BurstsInTheCut, DedupHandOverTest,
+    ::testing::Combine(::testing::Values(120u, 200u, 300u, 420u, 572u),             // frames
+                       ::testing::Values(uint64_t{400}, 1300u, 2500u, 2820u),         // ms in
+                       ::testing::Values(uint64_t{60}, uint64_t{300}, uint64_t{900})));
 
 TEST_F(DedupTest, LatencyStepChangesNothing) {
     // b's latency jumps from 300 ms to 700 ms half way (an LTE cell change): positions do not

@@ -22,7 +22,11 @@
 // The links of a bond carry one stream fanned out by the other side, so copies share their
 // sequence bytes. The bond remembers, per source, which recent sequence numbers it delivered;
 // after a switch the new active link's copies of frames the old one delivered are dropped,
-// and what the old link lost but the new one carries is delivered (DeliveredHistory).
+// and what the old link lost but the new one carries is delivered (DeliveredHistory). While
+// the active link is overdue (silent for twice its usual gap, and half of switch_after), a
+// backup's new frames stand in for it: a frame both links brought, one just before a switch
+// and the other just after, is otherwise lost on both, and the history keeps the active
+// link's late copies out.
 // Frames toward the peer are not touched: the host's bond tx policy decides that.
 #include <algorithm>
 #include <array>
@@ -167,11 +171,14 @@ private:
 ///
 /// A copy is recognised while the link bringing it is less than 128 frames of its source and
 /// less than `horizon` behind the delivery of the original; a copy from further behind looks
-/// new and is delivered again (a duplicate, never a loss). The horizon (switch_after) also
-/// keeps the numbers apart after a silence switch: the new link's frames are then a second or
-/// more ahead, which modulo 256 may look like "just behind", and a source's history that old
-/// is forgotten instead.
+/// new and is delivered again (a duplicate, never a loss). The horizon (switch_after, or the
+/// time the source takes for 128 frames at its rate over the last second, if shorter) also
+/// keeps the numbers apart after a silence: the new link's frames may then be 128 or more
+/// ahead, which modulo 256 may look like "just behind", and a source's history that old is
+/// forgotten instead.
 class DeliveredHistory {
+    static constexpr uint64_t kHistoryFrames = 128;
+
 public:
     enum class Seen { kNew, kDelivered, kUntracked };
 
@@ -182,10 +189,14 @@ public:
         Source* s = sources_.find(sysid, compid);
         if (!s)
             return Seen::kUntracked;
+        if (s->ns_per_frame != 0)
+            horizon = std::min(horizon, kHistoryFrames * s->ns_per_frame);
         if (!s->delivered_any || restart || elapsed(now, s->last_delivery_ns) >= horizon) {
             s->delivered_any = true;
             s->newest = seq;
             s->behind.reset();
+            s->span_start_ns = now;
+            s->span_frames = 0;
         } else {
             auto ahead = static_cast<uint8_t>(seq - s->newest);
             if (ahead == 0)
@@ -194,6 +205,12 @@ public:
                 s->behind.shift(ahead);
                 s->behind.set(ahead - 1u);
                 s->newest = seq;
+                s->span_frames += ahead;
+                if (elapsed(now, s->span_start_ns) >= kSecond) {
+                    s->ns_per_frame = elapsed(now, s->span_start_ns) / s->span_frames;
+                    s->span_start_ns = now;
+                    s->span_frames = 0;
+                }
             } else {
                 // 1..128 behind the newest: bit (behind - 1).
                 unsigned bit = static_cast<uint8_t>(s->newest - seq) - 1u;
@@ -212,6 +229,9 @@ private:
         uint8_t newest = 0;
         History128 behind;  // bit i: newest - 1 - i was delivered
         uint64_t last_delivery_ns = 0;
+        uint64_t span_start_ns = 0;  // the source's rate: frames its newest moved on over
+        uint64_t span_frames = 0;    // spans of a second (none across a silence)
+        uint64_t ns_per_frame = 0;   // 0: not measured yet
     };
 
     SourceTable<Source, kHistorySources> sources_;
@@ -222,6 +242,8 @@ constexpr const char* kReasonNames[kReasons] = {"silence", "loss", "failback", "
 // A link is dead after this many of its usual longest gaps without a frame (when that is
 // longer than switch_after); the usual gap forgets a long one by half every kGapHalfLife.
 constexpr double kSilentGaps = 3;
+// ... and overdue, its frames stood in for by a backup's, after this many.
+constexpr double kOverdueGaps = 2;
 constexpr double kGapHalfLife = 5e9;
 
 struct Link {
@@ -242,6 +264,7 @@ struct Link {
     uint64_t passed = 0;
     uint64_t dropped = 0;
     uint64_t already_delivered = 0;
+    uint64_t stood_in = 0;  // of those passed, while the active link was overdue
 };
 
 struct Bond {
@@ -287,6 +310,11 @@ private:
     uint64_t silence(const Link& l) const {
         double gaps = kSilentGaps * (l.gap_ns < 0 ? static_cast<double>(switch_after_) : l.gap_ns);
         return std::max(switch_after_, static_cast<uint64_t>(gaps));
+    }
+    /// Silent long enough that a backup's new frames stand in for it (see the top).
+    bool overdue(const Link& l, uint64_t now) const {
+        double gaps = kOverdueGaps * std::max(l.gap_ns, 0.0);
+        return elapsed(now, l.last_heard_ns) >= std::max(switch_after_ / 2, static_cast<uint64_t>(gaps));
     }
     bool alive(const Link& l, uint64_t now) const {
         return l.present && l.heard && elapsed(now, l.last_heard_ns) < silence(l);
@@ -517,7 +545,8 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
         order_members(b);
         make_active(b, b.members.front(), kReasons, nullptr);
     }
-    if (from->id != b.active) {
+    const bool standing_in = from->id != b.active;
+    if (standing_in && !overdue(links_[b.active], now)) {
         l->dropped++;
         return MAVBOND_DROP;
     }
@@ -533,6 +562,7 @@ mavbond_verdict LinkSwitch::on_ingress(const mavbond_frame* f, const mavbond_fra
         break;
     }
     l->passed++;
+    l->stood_in += standing_in ? 1 : 0;
     return MAVBOND_PASS;
 }
 
@@ -791,10 +821,11 @@ void LinkSwitch::status(JsonOut& out) {
             else
                 out.raw("null");  // not heard for a whole window, or too few frames in it
             out.raw(",\"probation\":%s,\"passed\":%llu,\"dropped\":%llu,"
-                    "\"already_delivered\":%llu}",
+                    "\"already_delivered\":%llu,\"stood_in\":%llu}",
                     l.on_probation ? "true" : "false", static_cast<unsigned long long>(l.passed),
                     static_cast<unsigned long long>(l.dropped),
-                    static_cast<unsigned long long>(l.already_delivered));
+                    static_cast<unsigned long long>(l.already_delivered),
+                    static_cast<unsigned long long>(l.stood_in));
         }
         out.raw("]}");
     }
@@ -838,6 +869,10 @@ void LinkSwitch::metrics(mavbond::MetricOut& out) {
                         "their sequence number (copies the previous active link delivered "
                         "before a switch).",
                         l.already_delivered, labels);
+            out.counter("stood_in_frames",
+                        "Frames of a backup link passed while the active link was overdue "
+                        "(new ones only; counted in passed_frames too).",
+                        l.stood_in, labels);
         }
     }
 }

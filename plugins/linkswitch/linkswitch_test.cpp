@@ -23,6 +23,7 @@ extern "C" const mavbond_plugin_descriptor* mavbond_plugin_entry(void);
 namespace mavbond {
 namespace {
 
+using std::chrono::microseconds;
 using std::chrono::milliseconds;
 using std::chrono::seconds;
 
@@ -753,16 +754,16 @@ TEST_F(LinkSwitchTest, ACopyMoreThan128FramesBehindIsDeliveredAgainNeverLost) {
 }
 
 TEST_F(LinkSwitchTest, SilenceSwitchAfterMoreThan128FramesLosesNothing) {
-    // 200 frames/s: after 1 s of silence lte's frames are about 210 ahead of the last one
-    // delivered, which modulo 256 reads as 46 behind. The history is older than switch_after
-    // and forgotten, so they are new.
+    // 400 frames/s: when radio is overdue (half of switch_after), lte's frames are about 190
+    // ahead of the last one delivered, which modulo 256 reads as 66 behind. 128 frames at the
+    // source's rate is shorter than that silence, so the history is forgotten: they are new.
     host_.add_link("radio", "vehicle");
     host_.add_link("lte", "vehicle");
     create("switch_after: 1s");
     Path radio{"radio"}, lte{"lte", 10};
-    fan_out(400, {&radio, &lte}, milliseconds(5));
+    fan_out(800, {&radio, &lte}, microseconds(2500));
     radio.on = false;
-    fan_out(600, {&radio, &lte}, milliseconds(5));
+    fan_out(1200, {&radio, &lte}, microseconds(2500));
     ASSERT_EQ(active(), "lte");
     std::map<int64_t, int> times;
     int64_t last_radio = -1, first_lte = -1;
@@ -773,11 +774,38 @@ TEST_F(LinkSwitchTest, SilenceSwitchAfterMoreThan128FramesLosesNothing) {
         else if (first_lte < 0)
             first_lte = d.frame;
     }
-    EXPECT_EQ(last_radio, 399);
+    EXPECT_EQ(last_radio, 799);
     EXPECT_GT(first_lte, last_radio + 128);
-    for (int64_t k = 0; k < 1000 - 10; k++)
+    for (int64_t k = 0; k < 2000 - 10; k++)
         EXPECT_EQ(times[k], k <= last_radio || k >= first_lte ? 1 : 0) << "frame " << k;
     EXPECT_EQ(link_field("lte", "already_delivered"), 0) << status();
+    EXPECT_GT(link_field("lte", "stood_in"), 0) << status();  // before the switch
+}
+
+TEST_F(LinkSwitchTest, AFrameBothLinksBroughtIsNotLostToTheSwitchBetweenThem) {
+    // The real-peers case (tests/peers): a side that hears the GCS's few frames a second.
+    // radio, the active link, is 500 ms behind lte and loses frames 40..42: it is overdue once
+    // silent for twice its usual gap (1 s), dead after switch_after (1.7 s). lte brings frame
+    // 43 before the switch, radio brings it after: without lte standing in for the overdue
+    // radio, each copy came on a link that was not active, and the frame was lost on both.
+    host_.add_link("radio", "vehicle");
+    host_.add_link("lte", "vehicle");
+    create("switch_after: 1700ms");
+    Path radio{"radio", 1}, lte{"lte", 0};
+    radio.loses = [](int64_t k) { return k >= 40 && k < 43; };
+    fan_out(60, {&radio, &lte}, milliseconds(500));
+    ASSERT_EQ(switched_at_.size(), 1u);
+    EXPECT_EQ(switched_at_[0].second, "lte");
+    std::map<int64_t, int> times;
+    for (const Delivery& d : delivered_)
+        times[d.frame]++;
+    for (int64_t k = 0; k < 59; k++) {
+        if (k < 40 || k >= 42)  // both brought it (42: lte, while radio was overdue)
+            EXPECT_EQ(times[k], 1) << "frame " << k;
+        else
+            EXPECT_EQ(times[k], 0) << "frame " << k << ": lte's, while radio was active";
+    }
+    EXPECT_EQ(link_field("lte", "stood_in"), 2) << status();  // 42 and 43
 }
 
 TEST_F(LinkSwitchTest, ARepeatOnTheActiveLinkIsDroppedAndALateFrameDelivered) {
