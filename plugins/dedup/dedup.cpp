@@ -110,6 +110,7 @@ struct Record {
     uint8_t slot;            // index in the entry's rec[]
     uint8_t first_member;    // position of the first link in its bond
     uint8_t seen;            // members that have had this instance (bit = member position)
+    uint8_t by_time;         // placed by a tentative alignment (time chose it)
 };
 
 /// One key: its hash, its bond and its live instances (ring positions).
@@ -143,8 +144,7 @@ struct Lane {
     uint64_t tentative_since;  // when the tentative alignment began
     int64_t head_before;       // the stream's head then
     int64_t proposed;        // the offset those contradictions agree on
-    int64_t last_link_pos;   // the link's highest position of the stream so far
-    int64_t last_bond_pos;
+    int64_t behind_head;     // how far behind the stream's head its last placed frame was
     int64_t head_then;       // the stream's head when the link's last frame came
     uint64_t last_t;
 };
@@ -267,11 +267,14 @@ private:
     void set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why);
     /// Marks a lane's alignment as chosen by time (or standing without evidence) from now on.
     void mark_tentative(const Arrival& a, Lane& lane);
-    /// Moves record `rec`, placed by its first link's tentative alignment, to `pos`, and with
-    /// it that link's alignment and the frames it alone delivered since it began.
-    void move_tentative(const Arrival& a, uint32_t rec, int64_t pos);
-    /// Whether only its first link had record `r`, placed by a tentative alignment.
-    bool placed_by_time_alone(const Arrival& a, const Record& r);
+    /// A link's tentative alignment (`was`) found wrong and replaced (`now`): what the link
+    /// alone placed under it moves to where `now` puts it, and the stream's head back if it
+    /// carried the head too far.
+    void correct_tentative(uint32_t stream, uint32_t member, const Lane& was, const Lane& now);
+    /// Record `rec`, placed by time and had by its first link alone, is at `pos`, as a link
+    /// that never left shows: it moves there, and with it its link's alignment (and what the
+    /// link delivered since) when that still stands.
+    void move_placed_by_time(const Arrival& a, uint32_t rec, int64_t pos);
     void learn_lag(Member& m, int64_t skew_ns);
     /// Remembers a new frame; `e`: its key's entry as decide() found it (kNone: none yet).
     void remember(const Arrival& a, Key key, int64_t pos, uint32_t e);
@@ -671,51 +674,58 @@ void Dedup::mark_tentative(const Arrival& a, Lane& lane) {
     lane.head_before = streams_[a.stream].head;
 }
 
-bool Dedup::placed_by_time_alone(const Arrival& a, const Record& r) {
-    const Lane& first = lanes_[size_t{a.stream} * kMaxMembers + r.first_member];
-    return first.generation == member_of(a.bond, r.first_member).generation && first.aligned &&
-           first.tentative && r.seen == (1u << r.first_member) && r.t0 >= first.tentative_since &&
-           r.pos == r.link_pos + first.offset;
+void Dedup::move_placed_by_time(const Arrival& a, uint32_t rec, int64_t pos) {
+    Record& r = ring_[rec];
+    Lane& first = lanes_[size_t{a.stream} * kMaxMembers + r.first_member];
+    if (first.generation == member_of(a.bond, r.first_member).generation && first.tentative &&
+        r.t0 >= first.tentative_since && r.pos == r.link_pos + first.offset) {
+        const Lane was = first;
+        Arrival at_first = a;
+        at_first.member = r.first_member;
+        at_first.link_id = r.first_link_id;
+        set_alignment(at_first, first, pos - r.link_pos,
+                      "a link that never left has its frame elsewhere");
+        correct_tentative(a.stream, r.first_member, was, first);  // r among them
+    } else {  // the link was aligned anew since: the frame alone
+        unplace(rec);
+        r.pos = pos;
+        place(rec);
+    }
+    r.by_time = 0;
 }
 
-void Dedup::move_tentative(const Arrival& a, uint32_t rec, int64_t pos) {
-    const uint32_t fm = ring_[rec].first_member;
-    Lane& lane = lanes_[size_t{a.stream} * kMaxMembers + fm];
-    const int64_t old_offset = lane.offset, offset = pos - ring_[rec].link_pos;
-    const uint64_t since = lane.tentative_since;
-    Stream& s = streams_[a.stream];
-    int64_t head = lane.head_before;
-    Arrival at_first = a;
-    at_first.member = fm;
-    at_first.link_id = ring_[rec].first_link_id;
-    set_alignment(at_first, lane, offset, "a link that never left has its frame elsewhere");
-    // What the link alone placed since is at the ring's tail (arrival order). All of it is
-    // taken out before any is put back, so no moved frame finds another's old place taken.
+void Dedup::correct_tentative(uint32_t stream, uint32_t member, const Lane& was,
+                              const Lane& now) {
+    if (!was.aligned || !was.tentative || !now.aligned || now.offset == was.offset)
+        return;
+    // What the link placed since is at the ring's tail (arrival order). All of it is taken
+    // out before any is put back, so no moved frame finds another's old place taken.
     auto since_then = [&](auto fn) {
         for (uint32_t i = ring_count_; i-- > 0;) {
             uint32_t r = ring_head_ + i >= capacity_ ? ring_head_ + i - capacity_ : ring_head_ + i;
-            if (ring_[r].t0 < since)
+            if (ring_[r].t0 < was.tentative_since)
                 break;
-            if (ring_[r].stream == a.stream)
-                fn(r, ring_[r], ring_[r].first_member == fm && ring_[r].seen == (1u << fm));
+            if (ring_[r].stream == stream)
+                fn(r, ring_[r], ring_[r].first_member == member && ring_[r].seen == (1u << member));
         }
     };
     since_then([&](uint32_t r, Record& x, bool alone) {
-        if (alone && x.pos == x.link_pos + old_offset) {
+        if (alone && x.pos == x.link_pos + was.offset) {
             unplace(r);
-            x.pos = x.link_pos + offset;
+            x.pos = x.link_pos + now.offset;
         }
     });
+    int64_t head = was.head_before;
     since_then([&](uint32_t r, Record& x, bool alone) {
-        if (alone && x.pos == x.link_pos + offset) {
-            if (at(a.stream, x.pos) == kNone)
+        if (alone && x.pos == x.link_pos + now.offset) {
+            if (at(stream, x.pos) == kNone)
                 place(r);
             else
                 x.pos = kUnknownPos;  // taken after all: placed when a copy comes
         }
-        head = std::max(head, x.pos);  // the stream's head, were it carried too far
+        head = std::max(head, x.pos);
     });
-    s.head = std::min(s.head, head);
+    streams_[stream].head = std::min(streams_[stream].head, head);
 }
 
 void Dedup::learn_lag(Member& m, int64_t skew_ns) {
@@ -867,24 +877,28 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     if (flags & MAVBOND_STREAM_RESYNC)
         return align(a, lane, find(a.bond, key), "its numbering restarted");
     // A link that may have missed 128 frames or more (silent that long at the source's rate,
-    // or the others moved the stream that far): its step modulo 256 is ambiguous, and it is
-    // placed anew (identity first, then time). Yet a link that merely lags behind a burst the
-    // others delivered, never silent, looks the same by positions, and its frames continue
-    // where its last one was: when the position its alignment gives is free and its key was
-    // delivered nowhere, nothing says otherwise, and the alignment stands, tentatively
-    // (placing it by time instead, with the source's rate thrown by the burst, put the link's
-    // next frames where their copies were not, and delivered them twice).
+    // the others moved the stream that far, its frame lands that much further behind the
+    // stream's head than the link ran, or the host read its step as one back to a position
+    // it had where the bond holds nothing): its step modulo 256 is ambiguous, and it is placed
+    // anew (identity first, then time). Yet a link that merely lags behind a burst the others
+    // delivered, never silent, looks the same by positions, and its frames continue where its
+    // last one was: when the position its alignment gives is free and its key was delivered
+    // nowhere, nothing says otherwise, and the alignment stands, tentatively (placing it by
+    // time instead, with the source's rate thrown by the burst, put the link's next frames
+    // where their copies were not, and delivered them twice).
+    const int64_t continued = a.link_pos + lane.offset;  // where its step says it is
     const bool silent = silent_for_a_turn(lane, s, a.t);
-    if (silent || s.head - lane.head_then >= kAmbiguousStep) {
+    if (silent || s.head - lane.head_then >= kAmbiguousStep ||
+        s.head - continued - lane.behind_head >= kAmbiguousStep ||
+        ((flags & MAVBOND_STREAM_REPEAT) && at(a.stream, continued) == kNone)) {
         uint32_t e = find(a.bond, key);
-        if (silent || at(a.stream, a.link_pos + lane.offset) != kNone ||
-            (e != kNone && unseen_instance(a, e)))
-            return align(a, lane, e, "an outage of 128 frames or more");
+        if (silent || at(a.stream, continued) != kNone || (e != kNone && unseen_instance(a, e)))
+            return align(a, lane, e, "a step of 128 frames or more");
         mark_tentative(a, lane);
     }
 
     Verdict v;
-    v.pos = a.link_pos + lane.offset;
+    v.pos = continued;
     uint32_t held = at(a.stream, v.pos);
     if (held != kNone) {
         if (ring_[held].h1 == key.h1 && ring_[held].h2 == key.h2) {
@@ -898,8 +912,12 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
             return copy_of(a, held);  // the bond delivered this very position
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
-        // without a run of frames to show it). Placed anew, by identity first.
-        return align(a, lane, find(a.bond, key), "another frame holds its position");
+        // without a run of frames to show it, or time chose wrong). Placed anew, by identity
+        // first.
+        const Lane was = lane;
+        Verdict placed = align(a, lane, find(a.bond, key), "another frame holds its position");
+        correct_tentative(a.stream, a.member, was, lane);
+        return placed;
     }
     uint32_t e = find(a.bond, key);
     v.entry = e;
@@ -938,15 +956,17 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         // alignment time chose; otherwise two such frames in a row agreeing on one do.
         uint32_t rec = en.rec[elsewhere];
         const Record& r = ring_[rec];
-        if (!lane.tentative && placed_by_time_alone(a, r)) {
+        if (!lane.tentative && r.by_time && r.seen == (1u << r.first_member)) {
             // Time placed it, and this link never left: its position is the evidence.
-            move_tentative(a, rec, v.pos);
+            move_placed_by_time(a, rec, v.pos);
             return copy_of(a, rec);
         }
         int64_t offset = r.pos - a.link_pos;
         if (a.is_signed || lane.tentative ||
             (lane.contradictions > 0 && lane.proposed == offset)) {
+            const Lane was = lane;
             set_alignment(a, lane, offset, "a unique frame the bond has at another position");
+            correct_tentative(a.stream, a.member, was, lane);
             return copy_of(a, rec);
         }
         lane.contradictions = 1;
@@ -980,9 +1000,8 @@ void Dedup::note_position(const Arrival& a, Lane& lane, int64_t pos) {
             s.head_member = a.member;
         }
         if (lane.aligned)
-            lane.last_bond_pos = std::max(lane.last_bond_pos, pos);
+            lane.behind_head = s.head - pos;
     }
-    lane.last_link_pos = std::max(lane.last_link_pos, a.link_pos);
     lane.head_then = s.head;
     lane.last_t = a.t;
 }
@@ -1006,6 +1025,7 @@ void Dedup::remember(const Arrival& a, Key key, int64_t pos, uint32_t e) {
     r.stream = a.stream;
     r.first_member = static_cast<uint8_t>(a.member);
     r.seen = static_cast<uint8_t>(1u << a.member);
+    r.by_time = lanes_[size_t{a.stream} * kMaxMembers + a.member].tentative;
     uint32_t rec = add_instance(e, r);
     if (r.pos != kUnknownPos)
         place(rec);

@@ -688,24 +688,27 @@ TEST_F(DedupTest, ALinkLaggingBehindABurstKeepsItsPlace) {
         EXPECT_EQ(std::string::npos, line.find("aligned anew")) << line;
 }
 
-/// (burst frames, ms into the cut it comes, the slow link's lag in ms)
+/// (burst frames, ms into the fast link's cut it comes, the slow link's lag in ms, frames of a
+/// second burst in the slow link's cut)
 class DedupHandOverTest
     : public DedupTest,
-      public ::testing::WithParamInterface<std::tuple<uint32_t, uint64_t, uint64_t>> {};
+      public ::testing::WithParamInterface<std::tuple<uint32_t, uint64_t, uint64_t, uint32_t>> {};
 
 TEST_P(DedupHandOverTest, ALinkBackFromACutIsPlacedByTheLinkThatNeverLeft) {
     // The real-peers cut (tests/peers): the fast link is cut for 3 s while a burst crosses the
-    // slow one, then comes back just as the slow link is cut in turn; both lose 5 %. The fast
-    // link's first frames are new, and time places them among turns of 256 with a rate the
-    // burst threw off; the slow link's copies still in flight come from a lane that never
-    // left. Its positions are the evidence: the fast link is placed by them (with what it
-    // delivered meanwhile), not the slow link by the fast one's guess. Before, 16 of these 60
-    // cases passed a frame twice (the peers stage: an ATTITUDE to the GCS). Every frame once.
+    // slow one, then comes back just as the slow link is cut in turn (a second burst right
+    // after); both lose 5 %. The fast link's first frames are new, and time places them among
+    // turns of 256 with a rate the burst threw off; the slow link's copies still in flight
+    // come from a lane that never left: its positions are the evidence, and the fast link is
+    // placed by them (with what it delivered meanwhile), not the slow link by the fast one's
+    // guess. The slow link, back in turn, has a step the host reads as one back (128 or more
+    // modulo 256) and lands further behind the head than it ran: placed anew. Before, 36 of
+    // these 81 cases passed a frame twice (the peers stage: an ATTITUDE to the GCS).
     struct Sent {
         uint64_t t;
         Bytes frame;
     };
-    const auto [burst, burst_at_ms, lag_ms] = GetParam();
+    const auto [burst, burst_at_ms, lag_ms, burst2] = GetParam();
     ASSERT_TRUE(create("window: 2s\nstale_after: 1s"));
     std::vector<Sent> sent;
     const uint64_t start = now();
@@ -717,9 +720,14 @@ TEST_P(DedupHandOverTest, ALinkBackFromACutIsPlacedByTheLinkThatNeverLeft) {
         for (; t < end; t += 28 * kMs, k++)  // 35 Hz telemetry
             sent.push_back({t, v2(seq++, kAttitude, attitude_payload(k * 28))});
     };
+    auto parameters = [&](uint32_t n, uint8_t list) {  // a parameter list, at once
+        for (uint32_t p = 0; p < n; p++)
+            sent.push_back({t, v2(seq++, 22, {static_cast<uint8_t>(p), static_cast<uint8_t>(p >> 8), list})});
+    };
     telemetry_until(cut + burst_at_ms * kMs);
-    for (uint32_t p = 0; p < burst; p++)  // a parameter list, at once
-        sent.push_back({t, v2(seq++, 22, {static_cast<uint8_t>(p), static_cast<uint8_t>(p >> 8)})});
+    parameters(burst, 1);
+    telemetry_until(cut + 3100 * kMs);
+    parameters(burst2, 2);
     telemetry_until(cut + 9000 * kMs);
     std::vector<Arrival> arrivals;
     std::mt19937 rng(burst * 7919 + burst_at_ms * 31 + lag_ms);
@@ -744,9 +752,10 @@ TEST_P(DedupHandOverTest, ALinkBackFromACutIsPlacedByTheLinkThatNeverLeft) {
 
 INSTANTIATE_TEST_SUITE_P(
     BurstsInTheCut, DedupHandOverTest,
-    ::testing::Combine(::testing::Values(120u, 200u, 300u, 420u, 572u),             // frames
-                       ::testing::Values(uint64_t{400}, 1300u, 2500u, 2820u),         // ms in
-                       ::testing::Values(uint64_t{60}, uint64_t{300}, uint64_t{900})));
+    ::testing::Combine(::testing::Values(120u, 300u, 572u),                      // frames
+                       ::testing::Values(uint64_t{400}, 2500u, 2820u),            // ms in
+                       ::testing::Values(uint64_t{60}, uint64_t{300}, uint64_t{900}),  // lag
+                       ::testing::Values(0u, 25u, 40u)));
 
 TEST_F(DedupTest, LatencyStepChangesNothing) {
     // b's latency jumps from 300 ms to 700 ms half way (an LTE cell change): positions do not
