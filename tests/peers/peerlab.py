@@ -259,13 +259,12 @@ class Rig:
             if side == "ground" and self.renumber:
                 f["key"] = "content"
         elif self.mode == "linkswitch":
+            # Its defaults on both sides. What the air side hears from the ground between
+            # transfers is the GCS's 1 Hz heartbeat: with switch_after taken literally one lost
+            # heartbeat was a dead link, and the bond moved to the slow link for good (found
+            # here; linkswitch now waits for three of a link's usual gaps, and fails back to a
+            # link too thin to judge).
             f = {"plugin": "linkswitch", "bonds": [bond]}
-            if side == "air":
-                # What the air side hears from the ground is the GCS: a 1 Hz heartbeat between
-                # transfers. With the default switch_after (1 s) one lost heartbeat is a dead
-                # link, and the bond moves to the slow link for good (its loss cannot be
-                # judged at that rate, so it never fails back).
-                f["switch_after"] = "2500ms"
         else:
             return []
         return [f, {"plugin": "stats", "interval": "1s", "log": False}]
