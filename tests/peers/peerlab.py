@@ -103,6 +103,8 @@ class Process:
         self.err_path = workdir / f"{name}.err"
         self._out = open(self.out_path, "wb")
         self._err = open(self.err_path, "wb")
+        # MAVSDK leaves its component-metadata cache in the temp directory: the run's own.
+        env = dict(os.environ if env is None else env, TMPDIR=str(workdir))
         self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=self._out,
                                      stderr=self._err, env=env)
 
