@@ -17,15 +17,30 @@ bool MessageFilter::passes(uint32_t msgid) const {
     return !has(config_.block);
 }
 
-Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
-                   const Endpoint* parent, Role role)
-    : Link(std::move(name), config.name, config.bond, role == Role::Recorder), config_(config),
-      tx_(mode, config.tx_queue_bytes),
+namespace {
+
+// What a datagram carries beyond its frame on the way out: IPv4 and UDP headers.
+constexpr uint32_t kDatagramOverhead = 20 + 8;
+
+}  // namespace
+
+Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
+                   TxQueue::Mode mode, const Endpoint* parent, Role role)
+    : Link(std::move(name), config.name, config.bond, role == Role::Recorder), loop_(loop),
+      config_(config), tx_(mode, config.tx_queue_bytes),
       filter_in_(config_.filter_in), filter_out_(config_.filter_out) {
     if (parent)
         verifier_ = parent->verifier_;
     else if (config.signing.enabled)
         verifier_ = std::make_shared<SignatureVerifier>(config.signing.key);
+    const TxBudgetConfig& b = config_.tx_budget;
+    if (b.enabled()) {
+        // A UART's own rate: 8N1 puts 10 bits on the line for each byte.
+        uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
+        budget_ = std::make_unique<TxBudget>(
+            rate, mode == TxQueue::Mode::Datagram ? kDatagramOverhead : 0, b.classes,
+            config_.tx_queue_bytes);
+    }
 }
 
 Endpoint::~Endpoint() = default;
@@ -81,6 +96,10 @@ bool Endpoint::send(const Frame& frame) {
         stats_.tx_dropped++;
         return false;
     }
+    if (budget_ && !budget_->offer(frame, loop_.now())) {
+        release_budgeted();  // it waits (or a cap or its class's turn holds it)
+        return false;
+    }
     bool was_clean = !tx_.has_lent();
     if (!tx_.lend(frame.bytes)) {
         flush();
@@ -88,6 +107,31 @@ bool Endpoint::send(const Frame& frame) {
         was_clean = true;
     }
     return was_clean;
+}
+
+void Endpoint::release_budgeted() {
+    const TimePoint now = loop_.now();
+    // A held frame's bytes are the budget's until its next call: each goes out at once.
+    TimePoint due = budget_->release(now, [this](std::span<const uint8_t> bytes) {
+        if (!ready()) {
+            stats_.tx_dropped++;
+            return;
+        }
+        if (!tx_.lend(bytes)) {
+            flush();
+            tx_.lend(bytes);
+        }
+        flush();
+    });
+    if (due == TimePoint::max() || (budget_timer_.active() && budget_due_ <= due))
+        return;
+    budget_due_ = due;
+    budget_timer_ = loop_.schedule(std::max(due - now, Duration(1)), [this] {
+        budget_timer_.cancel();
+        budget_due_ = TimePoint::max();
+        release_budgeted();
+        return Duration::zero();
+    });
 }
 
 int Endpoint::write_datagrams(const iovec*, size_t) { return -ENOTSUP; }

@@ -37,8 +37,8 @@ public:
 /// An endpoint whose "socket" records the datagrams it was asked to send.
 class RecordingEndpoint : public Endpoint {
 public:
-    explicit RecordingEndpoint(const EndpointConfig& config)
-        : Endpoint(config, config.name, TxQueue::Mode::Datagram) {}
+    RecordingEndpoint(const EndpointConfig& config, EventLoop& loop)
+        : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram) {}
     const char* kind() const override { return "test"; }
     std::vector<std::vector<uint8_t>> written;
 
@@ -79,13 +79,14 @@ protected:
         c.name = name;
         return c;
     }
+    std::unique_ptr<EventLoop> loop_ = EventLoop::create().value();
     RecordingSink sink_;
 };
 
 TEST_F(EndpointTest, AllowInRefusalsReachRoutingToTeachTheirSourceOnly) {
     EndpointConfig c = config("autopilot");
     c.filter_in.allow = {kHeartbeat};
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     receive(e, {datagram(kHeartbeat), datagram(kAttitude, 1)});
     ASSERT_EQ(2u, sink_.handed.size());
     EXPECT_EQ(kHeartbeat, sink_.handed[0].msgid);
@@ -100,7 +101,7 @@ TEST_F(EndpointTest, AllowInRefusalsReachRoutingToTeachTheirSourceOnly) {
 TEST_F(EndpointTest, BlockOutDropsAndCounts) {
     EndpointConfig c = config("gcs");
     c.filter_out.block = {kAttitude};
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     auto att = datagram(kAttitude);
     auto hb = datagram(kHeartbeat);
     Frame f;
@@ -120,7 +121,7 @@ TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
     EndpointConfig c = config("radio");
     c.signing.enabled = true;
     c.signing.key.fill(7);
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     receive(e, {datagram(kHeartbeat)});
     EXPECT_TRUE(sink_.handed.empty());
     EXPECT_EQ(1u, e.counters().sig_unsigned);
@@ -128,7 +129,7 @@ TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
 }
 
 TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
-    RecordingEndpoint e(config("radio"));
+    RecordingEndpoint e(config("radio"), *loop_);
     std::vector<std::vector<uint8_t>> many;
     for (size_t i = 0; i < ReceivedBatch::kCapacity + 3; i++)
         many.push_back(datagram(kHeartbeat, static_cast<uint8_t>(i)));
