@@ -39,7 +39,7 @@ Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& lo
         uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
         budget_ = std::make_unique<TxBudget>(
             rate, mode == TxQueue::Mode::Datagram ? kDatagramOverhead : 0, b.classes,
-            config_.tx_queue_bytes);
+            config_.tx_queue_bytes, stats_.tx_class);
     }
 }
 

@@ -15,25 +15,13 @@ constexpr size_t kRecordHeader = 2;  // a bulk record's u16 length
 
 }  // namespace
 
-const char* tx_class_name(TxClass c) {
-    switch (c) {
-    case TxClass::Control:
-        return "control";
-    case TxClass::Telemetry:
-        return "telemetry";
-    case TxClass::Bulk:
-        return "bulk";
-    }
-    return "?";
-}
-
 TxBudget::TxBudget(uint64_t bytes_per_s, uint32_t overhead, const TxClassesConfig& classes,
-                   size_t bulk_capacity)
+                   size_t bulk_capacity, std::array<TxClassCounters, kTxClassCount>& counters)
     : rate_(bytes_per_s), overhead_(overhead),
       burst_(std::max(static_cast<double>(kMaxFrameLen + overhead),
                       static_cast<double>(bytes_per_s) * 0.02)),
       classes_(classes), tokens_(burst_),
-      ring_(std::max(bulk_capacity, kMaxFrameLen + kRecordHeader)) {
+      ring_(std::max(bulk_capacity, kMaxFrameLen + kRecordHeader)), counters_(counters) {
     slots_.reserve(32);
 }
 

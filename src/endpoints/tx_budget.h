@@ -24,27 +24,20 @@
 #include "config/config.h"
 #include "core/clock.h"
 #include "mavlink/frame.h"
+#include "routing/link.h"
 
 namespace mavbond {
 
+/// The classes in the order of kTxClassNames (routing/link.h).
 enum class TxClass : uint8_t { Control, Telemetry, Bulk };
-constexpr size_t kTxClassCount = 3;
-const char* tx_class_name(TxClass c);
-
-struct TxClassCounters {
-    uint64_t frames = 0;   // handed to the line
-    uint64_t bytes = 0;    // of them, with the framing charged
-    uint64_t waited = 0;   // of them, held for the budget (or a cap) first
-    uint64_t thinned = 0;  // replaced, while held, by a newer sample of the same message
-    uint64_t dropped = 0;  // bulk: the oldest when the queue was full; telemetry: no slot left
-};
 
 class TxBudget {
 public:
     /// `bytes_per_s`: the line's rate; `overhead`: bytes charged per frame beyond its own;
     /// `bulk_capacity`: bytes the bulk queue holds.
+    /// `counters`: where it counts, per class (the link's own).
     TxBudget(uint64_t bytes_per_s, uint32_t overhead, const TxClassesConfig& classes,
-             size_t bulk_capacity);
+             size_t bulk_capacity, std::array<TxClassCounters, kTxClassCount>& counters);
 
     TxClass classify(uint32_t msgid) const;
 
@@ -69,6 +62,7 @@ public:
     bool holding() const { return held_telemetry_ != 0 || bulk_frames_ != 0; }
     uint64_t bytes_per_s() const { return rate_; }
     const TxClassCounters& counters(TxClass c) const { return counters_[static_cast<size_t>(c)]; }
+    TxClassCounters& counters(TxClass c) { return counters_[static_cast<size_t>(c)]; }
 
 private:
     /// One message from one source: its cap, when it last went, and its newest held sample.
@@ -123,7 +117,7 @@ private:
     // Weighted turns when telemetry and bulk both wait: each class's bytes over its weight.
     double telemetry_turn_ = 0, bulk_turn_ = 0;
 
-    std::array<TxClassCounters, kTxClassCount> counters_{};
+    std::array<TxClassCounters, kTxClassCount>& counters_;
 };
 
 }  // namespace mavbond

@@ -61,7 +61,7 @@ struct Out {
 class Line {
 public:
     Line(uint64_t rate, const TxClassesConfig& c, size_t bulk_capacity = 16384)
-        : budget(rate, 0, c, bulk_capacity) {}
+        : budget(rate, 0, c, bulk_capacity, counters) {}
 
     void offer(const Made& m, TimePoint at) {
         run_until(at);
@@ -77,6 +77,7 @@ public:
         }
     }
 
+    std::array<TxClassCounters, kTxClassCount> counters{};
     TxBudget budget;
     std::vector<Out> out;
 
