@@ -925,7 +925,7 @@ void Parser::parse_tx_rate(const Entry& e, const std::string& ctx, const Endpoin
         if (std::string_view(type.type) != "uart")
             fail(value_mark(e), what + "'baud' takes a UART's own baudrate; give a " +
                                     type.title() + " endpoint a rate such as 5kB/s or 57600baud");
-        budget.uart_baud = true;
+        budget.uart_baud = budget.serial = true;
         return;
     }
     auto rate = parse_tx_rate_text(text);
@@ -936,6 +936,7 @@ void Parser::parse_tx_rate(const Entry& e, const std::string& ctx, const Endpoin
         fail(value_mark(e), what + text + " is outside " + std::to_string(kMinTxRate) +
                                 " B/s (one largest frame in 3 s) to 1GB/s");
     budget.bytes_per_s = *rate;
+    budget.serial = text.ends_with("baud");
 }
 
 void Parser::parse_tx_classes(const Entry& section, TxClassesConfig& classes) const {

@@ -60,6 +60,7 @@ struct TxClassesConfig {
 struct TxBudgetConfig {
     uint64_t bytes_per_s = 0;  // what the line carries of frame bytes; 0: no budget
     bool uart_baud = false;    // `tx_rate: baud`: the UART's own baudrate (set when it opens)
+    bool serial = false;       // given in baud: a serial line, so no datagram headers charged
     TxClassesConfig classes;   // the file's `tx_classes:` (or their defaults)
     bool enabled() const { return bytes_per_s != 0 || uart_baud; }
     bool operator==(const TxBudgetConfig&) const = default;

@@ -35,11 +35,12 @@ Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& lo
         verifier_ = std::make_shared<SignatureVerifier>(config.signing.key);
     const TxBudgetConfig& b = config_.tx_budget;
     if (b.enabled()) {
-        // A UART's own rate: 8N1 puts 10 bits on the line for each byte.
+        // A UART's own rate: 8N1 puts 10 bits on the line for each byte. A rate in baud is
+        // a serial line's (a radio behind the datagrams): no headers go over it.
         uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
-        budget_ = std::make_unique<TxBudget>(
-            rate, mode == TxQueue::Mode::Datagram ? kDatagramOverhead : 0, b.classes,
-            config_.tx_queue_bytes, stats_.tx_class);
+        bool headers = mode == TxQueue::Mode::Datagram && !b.serial;
+        budget_ = std::make_unique<TxBudget>(rate, headers ? kDatagramOverhead : 0, b.classes,
+                                             config_.tx_queue_bytes, stats_.tx_class);
     }
 }
 

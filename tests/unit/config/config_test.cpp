@@ -653,6 +653,8 @@ tx_classes:
     EXPECT_TRUE(eps[0].tx_budget.uart_baud);
     EXPECT_EQ(2048u, eps[1].tx_budget.bytes_per_s);
     EXPECT_EQ(5760u, eps[2].tx_budget.bytes_per_s);
+    EXPECT_TRUE(eps[2].tx_budget.serial) << "a rate in baud charges no datagram headers";
+    EXPECT_FALSE(eps[1].tx_budget.serial);
     EXPECT_FALSE(eps[3].tx_budget.enabled());
     EXPECT_TRUE(eps[3].tx_budget.classes.control.empty()) << "no budget, no classes";
     const TxClassesConfig& c = eps[1].tx_budget.classes;

@@ -138,5 +138,54 @@ TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
     EXPECT_EQ(1, sink_.batches) << "one end of batch, after the read";
 }
 
+TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
+    // 1000 B/s on a datagram link: an ATTITUDE costs its (up to) 40 bytes plus 28 of headers,
+    // and the bucket holds 308. A burst of 20 (from 20 sources, so none is thinned) sends the
+    // first four at once; the rest go on the endpoint's timer, in order, with no one flushing.
+    EndpointConfig c = config("lte");
+    c.tx_budget.bytes_per_s = 1000;
+    c.tx_budget.classes.control = {kHeartbeat};
+    RecordingEndpoint e(c, *loop_);
+    std::vector<std::vector<uint8_t>> sent;
+    ParserCounters counters;
+    for (uint8_t i = 0; i < 20; i++) {
+        std::array<uint8_t, kMaxFrameLen> buf{};
+        std::vector<uint8_t> payload(28, i);
+        size_t n = write_frame_v2(buf, FrameSource{static_cast<uint8_t>(i + 1), 1, i}, kAttitude,
+                                  payload);
+        sent.emplace_back(buf.begin(), buf.begin() + static_cast<ptrdiff_t>(n));
+        Frame f;
+        ASSERT_TRUE(DatagramParser(sent.back(), UnknownIdPolicy::Forward, counters).next(f));
+        e.send(f);
+    }
+    e.flush();
+    const size_t at_once = e.written.size();
+    EXPECT_EQ(4u, at_once);
+    // A heartbeat (control) goes at once, ahead of every frame still held.
+    auto hb = datagram(kHeartbeat);
+    Frame f;
+    ASSERT_TRUE(DatagramParser(hb, UnknownIdPolicy::Forward, counters).next(f));
+    e.send(f);
+    e.flush();
+    ASSERT_EQ(at_once + 1, e.written.size());
+    EXPECT_EQ(hb, e.written.back());
+    // The loop runs the budget's timer until everything went (16 x 68 bytes at 1000 B/s).
+    auto deadline = Clock::now() + seconds(5);
+    while (e.written.size() < 21 && Clock::now() < deadline)
+        loop_->run_once(milliseconds(50));
+    ASSERT_EQ(21u, e.written.size());
+    std::vector<std::vector<uint8_t>> telemetry(e.written.begin(), e.written.end());
+    telemetry.erase(telemetry.begin() + static_cast<ptrdiff_t>(at_once));
+    EXPECT_EQ(sent, telemetry) << "every one, in the order sent";
+    const TxClassCounters& t = e.counters().tx_class[1];
+    EXPECT_EQ(20u, t.frames);
+    EXPECT_EQ(16u, t.waited);
+    size_t bytes = 0;
+    for (const auto& d : sent)
+        bytes += d.size() + 28;
+    EXPECT_EQ(bytes, t.bytes) << "each with its IP and UDP headers";
+    EXPECT_EQ(1u, e.counters().tx_class[0].frames);
+}
+
 }  // namespace
 }  // namespace mavbond
