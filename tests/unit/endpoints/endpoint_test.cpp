@@ -139,11 +139,11 @@ TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
 }
 
 TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
-    // 1000 B/s on a datagram link: an ATTITUDE costs its (up to) 40 bytes plus 28 of headers,
-    // and the bucket holds 308. A burst of 20 (from 20 sources, so none is thinned) sends the
+    // 10 kB/s on a datagram link: an ATTITUDE costs its (up to) 40 bytes plus 28 of headers,
+    // and the bucket holds 308 (more than 20 ms of the rate). A burst of 20 (from 20 sources, so none is thinned) sends the
     // first four at once; the rest go on the endpoint's timer, in order, with no one flushing.
     EndpointConfig c = config("lte");
-    c.tx_budget.bytes_per_s = 1000;
+    c.tx_budget.bytes_per_s = 10000;
     c.tx_budget.classes.control = {kHeartbeat};
     RecordingEndpoint e(c, *loop_);
     std::vector<std::vector<uint8_t>> sent;
@@ -169,7 +169,7 @@ TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
     e.flush();
     ASSERT_EQ(at_once + 1, e.written.size());
     EXPECT_EQ(hb, e.written.back());
-    // The loop runs the budget's timer until everything went (16 x 68 bytes at 1000 B/s).
+    // The loop runs the budget's timer until everything went (16 x 68 bytes: 0.1 s).
     auto deadline = Clock::now() + seconds(5);
     while (e.written.size() < 21 && Clock::now() < deadline)
         loop_->run_once(milliseconds(50));
