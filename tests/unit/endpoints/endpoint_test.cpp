@@ -140,8 +140,9 @@ TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
 
 TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
     // 10 kB/s on a datagram link: an ATTITUDE costs its (up to) 40 bytes plus 28 of headers,
-    // and the bucket holds 308 (more than 20 ms of the rate). A burst of 20 (from 20 sources, so none is thinned) sends the
-    // first four at once; the rest go on the endpoint's timer, in order, with no one flushing.
+    // and the bucket holds 308 (one largest frame and its headers). A burst of 20 (from 20
+    // sources, so none is thinned) sends the first four at once; the rest go on the
+    // endpoint's timer, in order, with no one flushing.
     EndpointConfig c = config("lte");
     c.tx_budget.bytes_per_s = 10000;
     c.tx_budget.classes.control = {kHeartbeat};
