@@ -268,6 +268,9 @@ private:
 
     void check_keys(const MapView& view, const std::string& ctx,
                     const std::set<std::string_view>* allowed) const;
+    /// A top-level section's map (`identity:`, `link_events:`, ...), its keys checked.
+    MapView section_view(const Entry& section, const std::string& ctx,
+                         const std::set<std::string_view>& keys) const;
     const std::string& scalar(const Entry& e, const std::string& ctx) const;
     std::string required_scalar(const MapView& view, const YAML::Node& map,
                                 std::string_view key, const std::string& ctx) const;
@@ -322,6 +325,15 @@ void Parser::check_keys(const MapView& view, const std::string& ctx,
         if (allowed && !allowed->count(e.name))
             fail(e.key.Mark(), ctx + "unknown key '" + e.name + "'");
     }
+}
+
+MapView Parser::section_view(const Entry& section, const std::string& ctx,
+                             const std::set<std::string_view>& keys) const {
+    if (!section.value.IsMap())
+        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
+    MapView view = make_view(section.value);
+    check_keys(view, ctx, &keys);
+    return view;
 }
 
 const std::string& Parser::scalar(const Entry& e, const std::string& ctx) const {
@@ -903,11 +915,8 @@ uint8_t Parser::mavlink_id(const Entry& e, const std::string& ctx) const {
 
 void Parser::parse_identity(const Entry& section) {
     const std::string ctx = "identity: ";
-    if (!section.value.IsMap())
-        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
-    MapView view = make_view(section.value);
     static const std::set<std::string_view> kKeys = {"sysid", "compid", "heartbeat"};
-    check_keys(view, ctx, &kKeys);
+    MapView view = section_view(section, ctx, kKeys);
     IdentityConfig& id = config_.identity;
     if (const Entry* e = view.find("sysid"))
         id.sysid = mavlink_id(*e, ctx);
@@ -941,11 +950,8 @@ void Parser::parse_tx_rate(const Entry& e, const std::string& ctx, const Endpoin
 
 void Parser::parse_tx_classes(const Entry& section, TxClassesConfig& classes) const {
     const std::string ctx = "tx_classes: ";
-    if (!section.value.IsMap())
-        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
-    MapView view = make_view(section.value);
     static const std::set<std::string_view> kKeys = {"control", "bulk", "caps"};
-    check_keys(view, ctx, &kKeys);
+    MapView view = section_view(section, ctx, kKeys);
     auto sorted = [](std::vector<uint32_t> ids) {
         std::sort(ids.begin(), ids.end());
         ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
@@ -997,11 +1003,8 @@ void Parser::parse_tx_classes(const Entry& section, TxClassesConfig& classes) co
 
 void Parser::parse_link_events(const Entry& section) {
     const std::string ctx = "link_events: ";
-    if (!section.value.IsMap())
-        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
-    MapView view = make_view(section.value);
     static const std::set<std::string_view> kKeys = {"statustext", "silent_after", "min_interval"};
-    check_keys(view, ctx, &kKeys);
+    MapView view = section_view(section, ctx, kKeys);
     LinkEventsConfig& ev = config_.link_events;
     ev.enabled = true;
     if (const Entry* e = view.find("statustext"))
