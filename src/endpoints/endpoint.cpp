@@ -110,20 +110,22 @@ bool Endpoint::send(const Frame& frame) {
     return was_clean;
 }
 
+void Endpoint::lend_now(std::span<const uint8_t> frame) {
+    if (!ready()) {
+        stats_.tx_dropped++;
+        return;
+    }
+    if (!tx_.lend(frame)) {
+        flush();
+        tx_.lend(frame);
+    }
+    flush();
+}
+
 void Endpoint::release_budgeted() {
     const TimePoint now = loop_.now();
     // A held frame's bytes are the budget's until its next call: each goes out at once.
-    TimePoint due = budget_->release(now, [this](std::span<const uint8_t> bytes) {
-        if (!ready()) {
-            stats_.tx_dropped++;
-            return;
-        }
-        if (!tx_.lend(bytes)) {
-            flush();
-            tx_.lend(bytes);
-        }
-        flush();
-    });
+    TimePoint due = budget_->release(now, [this](std::span<const uint8_t> b) { lend_now(b); });
     if (due == TimePoint::max() || (budget_timer_.active() && budget_due_ <= due))
         return;
     budget_due_ = due;
@@ -167,6 +169,8 @@ void Endpoint::flush() {
 }
 
 void Endpoint::finish(TimePoint deadline) {
+    if (budget_)  // what the budget held goes now, or is counted below with the rest
+        budget_->drain(loop_.now(), [this](std::span<const uint8_t> bytes) { lend_now(bytes); });
     flush();
     while (tx_.mid_frame() && wait_writable(deadline))
         flush();

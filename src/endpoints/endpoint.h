@@ -115,6 +115,8 @@ private:
     bool authentic(const Frame& frame);
     /// Sends what the budget lets go now and sets the timer for the rest.
     void release_budgeted();
+    /// Writes a frame whose bytes live only during the call (the budget's copies).
+    void lend_now(std::span<const uint8_t> frame);
 
     const EndpointConfig config_;  // before the filters, which point into it
     TxQueue tx_;

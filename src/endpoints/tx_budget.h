@@ -59,6 +59,16 @@ public:
         }
     }
 
+    /// Hands `out` everything held, budget or caps regardless (the link stops).
+    template <typename Out>
+    void drain(TimePoint now, Out&& out) {
+        refill(now);
+        while (held_telemetry_ != 0 || bulk_frames_ != 0) {
+            Pick p = pick(TimePoint::max(), false);
+            out(take(p, now));
+        }
+    }
+
     bool holding() const { return held_telemetry_ != 0 || bulk_frames_ != 0; }
     uint64_t bytes_per_s() const { return rate_; }
     const TxClassCounters& counters(TxClass c) const { return counters_[static_cast<size_t>(c)]; }

@@ -237,6 +237,34 @@ TEST(TxBudgetTest, TheBulkQueueDropsItsOldestWhenFull) {
     EXPECT_EQ(19, line.out.back().tag);
 }
 
+TEST(TxBudgetTest, ALinkThatStopsHandsOverEverythingHeld) {
+    TxClassesConfig c = classes();
+    c.caps = {{id("ATTITUDE"), seconds(10)}};
+    Line line(100, c);
+    for (int i = 0; i < 6; i++) {
+        line.offer(make(id("ATTITUDE"), static_cast<uint16_t>(i), 28, static_cast<uint8_t>(i + 1)),
+                   t0);
+        line.offer(make(id("FILE_TRANSFER_PROTOCOL"), static_cast<uint16_t>(i), 100), t0);
+    }
+    ASSERT_TRUE(line.budget.holding());
+    size_t before = line.out.size();
+    std::vector<uint16_t> ftp;
+    line.budget.drain(t0, [&](std::span<const uint8_t> b) {
+        if (static_cast<uint32_t>(b[7] | b[8] << 8) == id("FILE_TRANSFER_PROTOCOL"))
+            ftp.push_back(static_cast<uint16_t>(b[10] | b[11] << 8));
+        before++;
+    });
+    EXPECT_FALSE(line.budget.holding());
+    EXPECT_EQ(12u, before) << "every frame offered went, at once or now";
+    for (size_t i = 1; i < ftp.size(); i++)
+        EXPECT_GT(ftp[i], ftp[i - 1]);
+    const auto& t = line.budget.counters(TxClass::Telemetry);
+    const auto& b = line.budget.counters(TxClass::Bulk);
+    EXPECT_EQ(6u, t.frames);
+    EXPECT_EQ(6u, b.frames);
+    EXPECT_EQ(0u, t.thinned + t.dropped + b.dropped);
+}
+
 TEST(TxBudgetTest, SourcesAreThinnedApart) {
     Line line(500, classes());
     // Two vehicles' positions through one slow link: each keeps its own newest sample.
