@@ -184,7 +184,7 @@ void Endpoint::finish(TimePoint deadline) {
 }
 
 void Endpoint::clear_tx() {
-    stats_.tx_dropped += tx_.clear();
+    stats_.tx_dropped += tx_.clear() + (budget_ ? budget_->clear() : 0);
     on_backlog(false);
 }
 

@@ -181,6 +181,15 @@ std::span<const uint8_t> TxBudget::take(const Pick& p, TimePoint now) {
     return {bulk_out_.data(), len};
 }
 
+uint64_t TxBudget::clear() {
+    uint64_t held = held_telemetry_ + bulk_frames_;
+    for (Slot& s : slots_)
+        s.held = false;
+    held_telemetry_ = 0;
+    ring_head_ = ring_used_ = bulk_frames_ = 0;
+    return held;
+}
+
 // --- the bulk queue ----------------------------------------------------------------------------
 
 void TxBudget::ring_read(size_t at, uint8_t* into, size_t n) const {

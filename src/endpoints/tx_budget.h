@@ -69,6 +69,9 @@ public:
         }
     }
 
+    /// Forgets everything held (the link went away); returns how many frames that was.
+    uint64_t clear();
+
     bool holding() const { return held_telemetry_ != 0 || bulk_frames_ != 0; }
     uint64_t bytes_per_s() const { return rate_; }
     const TxClassCounters& counters(TxClass c) const { return counters_[static_cast<size_t>(c)]; }

@@ -210,6 +210,7 @@ void UdpServer::forget_silent_peers() {
                  to_string(peer->address()).c_str(),
                  std::chrono::duration<double>(now - peer->last_heard()).count());
         sink_.detach(*peer);
+        peer->finish(now);  // what waits for it goes now (a datagram never waits), counted
         retired_ += peer->counters();
         if (last_peer_ == peer.get())
             last_peer_ = nullptr;

@@ -248,7 +248,8 @@ void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& pr
             printf("    tx %s B/s:", budget->get("rate", "").c_str());
             for (const char* c : kClasses) {
                 std::string key = name + "/" + c;
-                std::string sent = per_second(key, budget->get<uint64_t>(std::string(c) + ".frames", 0));
+                std::string sent =
+                    per_second(key, budget->get<uint64_t>(std::string(c) + ".frames", 0));
                 uint64_t lost = budget->get<uint64_t>(std::string(c) + ".thinned", 0) +
                                 budget->get<uint64_t>(std::string(c) + ".dropped", 0);
                 printf(" %s %s/s (%s/s thinned or dropped)%s", c, sent.c_str(),

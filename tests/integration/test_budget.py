@@ -168,7 +168,8 @@ def test_a_saturated_radio_sends_commands_first_and_thins_telemetry(start_daemon
     assert b["telemetry"]["dropped"] == 0 and b["telemetry"]["thinned"] > 0
     assert b["bulk"]["frames"] == len(bulk_out) and b["bulk"]["dropped"] == 0
     assert radio["tx_frames"] == len(out) and radio["tx_dropped"] == 0
-    print(f"\n{len(sent)} frames offered in {SECONDS:.0f} s ({sum(len(s[2]) for s in sent) / SECONDS:.0f} B/s) "
+    offered = sum(len(s[2]) for s in sent) / SECONDS
+    print(f"\n{len(sent)} frames offered in {SECONDS:.0f} s ({offered:.0f} B/s) "
           f"to a {RATE} B/s radio, frozen 1 s; on the line in {window:.1f} s: "
           f"{sum(map(len, out)) / window:.0f} B/s; control {b['control']['frames']} "
           f"(every one, none waited, {overtaken} older frames overtaken), telemetry "

@@ -592,13 +592,17 @@ const BadCase kBadCases[] = {
      "t.yaml:6:5: endpoint 'gcs': key 'directory' does not apply to a udp endpoint"},
     // --- budgets and classes
     {"TxRateNoUnit", GCS "    tx_rate: 5000\n",
-     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5000' is not a rate (e.g. 5kB/s, 5760B/s, 57600baud, or baud for a UART's own)"},
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5000' is not a rate (e.g. 5kB/s, 5760B/s, "
+     "57600baud, or baud for a UART's own)"},
     {"TxRateBitsPerSecond", GCS "    tx_rate: 5kb/s\n",
-     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5kb/s' is not a rate (e.g. 5kB/s, 5760B/s, 57600baud, or baud for a UART's own)"},
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5kb/s' is not a rate (e.g. 5kB/s, 5760B/s, "
+     "57600baud, or baud for a UART's own)"},
     {"TxRateTooLow", GCS "    tx_rate: 50B/s\n",
-     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 50B/s is outside 100 B/s (one largest frame in 3 s) to 1GB/s"},
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 50B/s is outside 100 B/s (one largest frame "
+     "in 3 s) to 1GB/s"},
     {"TxRateBaudOnUdp", GCS "    tx_rate: baud\n",
-     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 'baud' takes a UART's own baudrate; give a udp server endpoint a rate such as 5kB/s or 57600baud"},
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 'baud' takes a UART's own baudrate; give a "
+     "udp server endpoint a rate such as 5kB/s or 57600baud"},
     {"TxRateOnTlog", "endpoints:\n  - {name: log, type: tlog, directory: /l, tx_rate: 5kB/s}\n",
      "t.yaml:2:44: endpoint 'log': key 'tx_rate' does not apply to a tlog endpoint"},
     {"TxClassesUnknownKey", GCS "tx_classes: {controll: [HEARTBEAT]}\n",
@@ -606,13 +610,17 @@ const BadCase kBadCases[] = {
     {"TxClassesUnknownMessage", GCS "tx_classes: {bulk: [FTP]}\n",
      "t.yaml:6:21: tx_classes: 'bulk': unknown message 'FTP'"},
     {"TxClassesBoth", GCS "tx_classes: {bulk: [HEARTBEAT]}\n",
-     "t.yaml:6:20: tx_classes: message HEARTBEAT (0) is in both control and bulk (a list not given is the default one, mavbond.yaml(5))"},
+     "t.yaml:6:20: tx_classes: message HEARTBEAT (0) is in both control and bulk (a list "
+     "not given is the default one, mavbond.yaml(5))"},
     {"TxClassesCapOnControl", GCS "tx_classes:\n  caps: {COMMAND_LONG: 1Hz}\n",
-     "t.yaml:7:10: tx_classes: caps: 'COMMAND_LONG': a cap thins telemetry; this message is control"},
+     "t.yaml:7:10: tx_classes: caps: 'COMMAND_LONG': a cap thins telemetry; this message "
+     "is control"},
     {"TxClassesCapNotHz", GCS "tx_classes:\n  caps: {ATTITUDE: 100ms}\n",
-     "t.yaml:7:20: tx_classes: caps: 'ATTITUDE': '100ms' is not a rate in Hz greater than 0 and at most 1000 (e.g. 10Hz, 0.5Hz)"},
+     "t.yaml:7:20: tx_classes: caps: 'ATTITUDE': '100ms' is not a rate in Hz greater than "
+     "0 and at most 1000 (e.g. 10Hz, 0.5Hz)"},
     {"TxClassesCapsNotMap", GCS "tx_classes:\n  caps: [ATTITUDE]\n",
-     "t.yaml:7:9: tx_classes: 'caps' must be a map of message: rate (e.g. ATTITUDE: 10Hz), not a sequence"},
+     "t.yaml:7:9: tx_classes: 'caps' must be a map of message: rate (e.g. ATTITUDE: 10Hz), "
+     "not a sequence"},
 };
 
 TEST(ConfigParse, IdentityLinkEventsAndRenumber) {
