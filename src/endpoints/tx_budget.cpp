@@ -59,12 +59,12 @@ void TxBudget::charge(TxClass c, size_t len, bool waited) {
         bulk_turn_ += weighted / kBulkShare;
 }
 
-TxBudget::Slot& TxBudget::slot_for(const Frame& frame) {
-    uint64_t key = (static_cast<uint64_t>(frame.msgid) << 16) |
-                   (static_cast<uint64_t>(frame.sysid) << 8) | frame.compid;
+TxBudget::Slot* TxBudget::slot_for(const Frame& frame) {
+    const uint64_t key = (static_cast<uint64_t>(frame.msgid) << 16) |
+                         (static_cast<uint64_t>(frame.sysid) << 8) | frame.compid;
     for (Slot& s : slots_) {
         if (s.key == key)
-            return s;
+            return &s;
     }
     Slot* s = nullptr;
     if (slots_.size() < kMaxSlots) {
@@ -76,7 +76,7 @@ TxBudget::Slot& TxBudget::slot_for(const Frame& frame) {
                 s = &old;
         }
         if (!s)
-            return slots_.front();  // every slot holds a frame: the caller drops this one
+            return nullptr;  // every slot holds a frame
         *s = Slot{};
     }
     s->key = key;
@@ -84,7 +84,7 @@ TxBudget::Slot& TxBudget::slot_for(const Frame& frame) {
                                 std::pair<uint32_t, Duration>(frame.msgid, Duration::min()));
     if (cap != classes_.caps.end() && cap->first == frame.msgid)
         s->cap = cap->second;
-    return *s;
+    return s;
 }
 
 bool TxBudget::offer(const Frame& frame, TimePoint now) {
@@ -106,13 +106,12 @@ bool TxBudget::offer(const Frame& frame, TimePoint now) {
         bulk_push(frame.bytes);
         return false;
     }
-    Slot& s = slot_for(frame);
-    uint64_t key = (static_cast<uint64_t>(frame.msgid) << 16) |
-                   (static_cast<uint64_t>(frame.sysid) << 8) | frame.compid;
-    if (s.key != key) {  // no slot free
+    Slot* slot = slot_for(frame);
+    if (!slot) {
         counters_[static_cast<size_t>(c)].dropped++;
         return false;
     }
+    Slot& s = *slot;
     if (!s.held && !queue_ahead && telemetry_ready(s, now)) {
         charge(c, len, false);
         s.last_sent = now;

@@ -75,7 +75,6 @@ public:
     bool holding() const { return held_telemetry_ != 0 || bulk_frames_ != 0; }
     uint64_t bytes_per_s() const { return rate_; }
     const TxClassCounters& counters(TxClass c) const { return counters_[static_cast<size_t>(c)]; }
-    TxClassCounters& counters(TxClass c) { return counters_[static_cast<size_t>(c)]; }
 
 private:
     /// One message from one source: its cap, when it last went, and its newest held sample.
@@ -96,7 +95,8 @@ private:
 
     void refill(TimePoint now);
     uint64_t cost(size_t len) const { return len + overhead_; }
-    Slot& slot_for(const Frame& frame);
+    /// The frame's message and source's slot, made if new; null when every slot holds one.
+    Slot* slot_for(const Frame& frame);
     bool telemetry_ready(const Slot& s, TimePoint now) const {
         return s.cap.count() == 0 || now - s.last_sent >= s.cap;
     }
