@@ -89,6 +89,94 @@ std::optional<uint64_t> parse_byte_size(std::string_view text) {
     return *n * unit;
 }
 
+constexpr uint64_t kMinTxRate = 100;                 // B/s: one largest frame in about 3 s
+constexpr uint64_t kMaxTxRate = 1000u * 1000 * 1000;  // a typo guard
+
+/// "5kB/s", "5760B/s", "64KiB/s", "1MB/s" (frame bytes a second) or "57600baud" (a serial line:
+/// 8N1 takes 10 bits a byte) -> bytes a second; nullopt on anything else.
+std::optional<uint64_t> parse_tx_rate_text(std::string_view text) {
+    if (text.size() > 4 && text.ends_with("baud")) {
+        auto baud = parse_u64(text.substr(0, text.size() - 4));
+        return baud ? std::optional<uint64_t>(*baud / 10) : std::nullopt;
+    }
+    if (!text.ends_with("B/s"))
+        return std::nullopt;
+    text.remove_suffix(3);
+    uint64_t unit = 1;
+    for (auto [prefix, mult] : {std::pair<std::string_view, uint64_t>{"Ki", 1024},
+                                {"k", 1000},
+                                {"Mi", 1024 * 1024},
+                                {"M", 1000 * 1000}}) {
+        if (text.size() > prefix.size() && text.ends_with(prefix)) {
+            text.remove_suffix(prefix.size());
+            unit = mult;
+            break;
+        }
+    }
+    auto n = parse_u64(text);
+    if (!n || *n > kMaxTxRate)
+        return std::nullopt;
+    return *n * unit;
+}
+
+/// "10Hz", "0.5Hz" -> the rate, within (0, 1000]; nullopt on anything else.
+std::optional<double> parse_hertz(std::string_view text) {
+    if (!text.ends_with("Hz"))
+        return std::nullopt;
+    text.remove_suffix(2);
+    double hz = 0;
+    auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), hz);
+    if (ec != std::errc() || ptr != text.data() + text.size() || text.empty() ||
+        !(text[0] >= '0' && text[0] <= '9') || !(hz > 0) || hz > 1000)
+        return std::nullopt;
+    return hz;
+}
+
+/// A message as the config names it: an id ("76") or a name ("COMMAND_LONG").
+std::optional<uint32_t> message_id(const std::string& text) {
+    if (!text.empty() && ((text[0] >= '0' && text[0] <= '9') || text[0] == '-')) {
+        auto id = parse_u64(text);
+        if (!id || *id > kMaxMessageId)
+            return std::nullopt;
+        return static_cast<uint32_t>(*id);
+    }
+    return find_message_id(text);
+}
+
+/// "COMMAND_LONG (76)", or "76" for an id the message table does not know.
+std::string message_label(uint32_t id) {
+    const MessageInfo* info = find_message(id);
+    return info ? std::string(info->name) + " (" + std::to_string(id) + ")" : std::to_string(id);
+}
+
+/// What a link with a budget spends it on first, when the file has no `tx_classes:`
+/// (mavbond.yaml(5) lists them). Control: what a pilot or a protocol waits for; bulk: what
+/// comes in long runs and is retried when lost. Everything else is telemetry.
+TxClassesConfig default_tx_classes() {
+    static const char* const kControl[] = {
+        "HEARTBEAT", "SET_MODE", "PING", "COMMAND_INT", "COMMAND_LONG", "COMMAND_ACK",
+        "COMMAND_CANCEL", "PARAM_REQUEST_READ", "PARAM_REQUEST_LIST", "PARAM_VALUE",
+        "PARAM_SET", "PARAM_EXT_REQUEST_READ", "PARAM_EXT_REQUEST_LIST", "PARAM_EXT_VALUE",
+        "PARAM_EXT_SET", "PARAM_EXT_ACK", "MISSION_ITEM", "MISSION_REQUEST",
+        "MISSION_SET_CURRENT", "MISSION_REQUEST_LIST", "MISSION_COUNT", "MISSION_CLEAR_ALL",
+        "MISSION_ITEM_REACHED", "MISSION_ACK", "MISSION_REQUEST_INT", "MISSION_ITEM_INT",
+        "MANUAL_CONTROL", "RC_CHANNELS_OVERRIDE", "SET_ATTITUDE_TARGET",
+        "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT", "SET_HOME_POSITION",
+        "LOG_REQUEST_LIST", "LOG_REQUEST_DATA", "LOG_ERASE", "LOG_REQUEST_END", "STATUSTEXT"};
+    static const char* const kBulk[] = {
+        "FILE_TRANSFER_PROTOCOL", "LOG_ENTRY", "LOG_DATA", "DATA_TRANSMISSION_HANDSHAKE",
+        "ENCAPSULATED_DATA", "REMOTE_LOG_DATA_BLOCK", "REMOTE_LOG_BLOCK_STATUS", "GPS_RTCM_DATA",
+        "GPS_INJECT_DATA", "SERIAL_CONTROL", "LOGGING_DATA", "LOGGING_DATA_ACKED", "LOGGING_ACK"};
+    TxClassesConfig classes;
+    for (const char* name : kControl)
+        classes.control.push_back(*find_message_id(name));
+    for (const char* name : kBulk)
+        classes.bulk.push_back(*find_message_id(name));
+    std::sort(classes.control.begin(), classes.control.end());
+    std::sort(classes.bulk.begin(), classes.bulk.end());
+    return classes;
+}
+
 /// 65536 -> "64KiB", 1073741824 -> "1GiB": the largest unit that divides it.
 std::string format_size(uint64_t n) {
     for (auto [unit, mult] : {std::pair<const char*, uint64_t>{"GiB", 1u << 30},
@@ -180,6 +268,9 @@ private:
 
     void check_keys(const MapView& view, const std::string& ctx,
                     const std::set<std::string_view>* allowed) const;
+    /// A top-level section's map (`identity:`, `link_events:`, ...), its keys checked.
+    MapView section_view(const Entry& section, const std::string& ctx,
+                         const std::set<std::string_view>& keys) const;
     const std::string& scalar(const Entry& e, const std::string& ctx) const;
     std::string required_scalar(const MapView& view, const YAML::Node& map,
                                 std::string_view key, const std::string& ctx) const;
@@ -203,6 +294,9 @@ private:
                                 const std::string& ctx, bool given) const;
     OptionValue parse_address(const Entry& e, const std::string& ctx) const;
     void parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const;
+    void parse_tx_rate(const Entry& e, const std::string& ctx, const EndpointSchema& type,
+                       TxBudgetConfig& budget) const;
+    void parse_tx_classes(const Entry& section, TxClassesConfig& classes) const;
     void parse_bond(const YAML::Node& node, size_t index);
     void parse_filter(const YAML::Node& node, size_t index);
     void parse_identity(const Entry& section);
@@ -231,6 +325,15 @@ void Parser::check_keys(const MapView& view, const std::string& ctx,
         if (allowed && !allowed->count(e.name))
             fail(e.key.Mark(), ctx + "unknown key '" + e.name + "'");
     }
+}
+
+MapView Parser::section_view(const Entry& section, const std::string& ctx,
+                             const std::set<std::string_view>& keys) const {
+    if (!section.value.IsMap())
+        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
+    MapView view = make_view(section.value);
+    check_keys(view, ctx, &keys);
+    return view;
 }
 
 const std::string& Parser::scalar(const Entry& e, const std::string& ctx) const {
@@ -312,18 +415,13 @@ std::vector<uint32_t> Parser::message_ids(const Entry& e, const std::string& ctx
             fail(item.Mark(), where + "a message must be an id or a name, not " +
                                   kind_name(item));
         const std::string& text = item.Scalar();
-        if (!text.empty() && ((text[0] >= '0' && text[0] <= '9') || text[0] == '-')) {
-            auto id = parse_u64(text);
-            if (!id || *id > kMaxMessageId)
-                fail(item.Mark(), where + "message id '" + text + "' out of range 0.." +
-                                      std::to_string(kMaxMessageId));
-            ids.push_back(static_cast<uint32_t>(*id));
-        } else {
-            auto id = find_message_id(text);
-            if (!id)
-                fail(item.Mark(), where + "unknown message '" + text + "'");
-            ids.push_back(*id);
-        }
+        auto id = message_id(text);
+        if (!id && !text.empty() && ((text[0] >= '0' && text[0] <= '9') || text[0] == '-'))
+            fail(item.Mark(), where + "message id '" + text + "' out of range 0.." +
+                                  std::to_string(kMaxMessageId));
+        if (!id)
+            fail(item.Mark(), where + "unknown message '" + text + "'");
+        ids.push_back(*id);
     }
     return ids;
 }
@@ -350,7 +448,8 @@ Config Parser::parse(const YAML::Node& root) {
 
     static const std::set<std::string_view> kTopKeys = {
         "log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
-        "status_socket", "endpoints", "bonds", "filters", "identity", "link_events", "metrics"};
+        "status_socket", "endpoints", "bonds", "filters", "identity", "link_events", "metrics",
+        "tx_classes"};
     MapView view = make_view(root);
     check_keys(view, "", &kTopKeys);
 
@@ -400,6 +499,13 @@ Config Parser::parse(const YAML::Node& root) {
         parse_identity(*e);
     if (const Entry* e = view.find("link_events"))
         parse_link_events(*e);
+    TxClassesConfig classes = default_tx_classes();
+    if (const Entry* e = view.find("tx_classes"))
+        parse_tx_classes(*e, classes);
+    for (EndpointConfig& ep : config_.endpoints) {
+        if (ep.tx_budget.enabled())
+            ep.tx_budget.classes = classes;
+    }
     cross_check();
     return std::move(config_);
 }
@@ -453,8 +559,9 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     // rest are its type's (its table).
     static const std::set<std::string_view> kCommonKeys = {"name", "type", "tx_queue",
                                                            "allow_out", "block_out"};
+    // A recorder (a flight log) takes none of these: nothing comes from it, and it has no line.
     static const std::set<std::string_view> kReceiverKeys = {"allow_in", "block_in", "bond",
-                                                             "signing"};
+                                                             "signing", "tx_rate"};
     std::string ctx = "endpoint #" + std::to_string(index) + ": ";
     if (!node.IsMap())
         fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
@@ -558,6 +665,8 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     }
     if (const Entry* e = view.find("signing"))
         parse_signing(*e, ctx, ep.signing);
+    if (const Entry* e = view.find("tx_rate"))
+        parse_tx_rate(*e, ctx, type, ep.tx_budget);
     config_.endpoints.push_back(std::move(ep));
 }
 
@@ -806,11 +915,8 @@ uint8_t Parser::mavlink_id(const Entry& e, const std::string& ctx) const {
 
 void Parser::parse_identity(const Entry& section) {
     const std::string ctx = "identity: ";
-    if (!section.value.IsMap())
-        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
-    MapView view = make_view(section.value);
     static const std::set<std::string_view> kKeys = {"sysid", "compid", "heartbeat"};
-    check_keys(view, ctx, &kKeys);
+    MapView view = section_view(section, ctx, kKeys);
     IdentityConfig& id = config_.identity;
     if (const Entry* e = view.find("sysid"))
         id.sysid = mavlink_id(*e, ctx);
@@ -820,13 +926,85 @@ void Parser::parse_identity(const Entry& section) {
         id.heartbeat = duration(*e, ctx, true);
 }
 
+void Parser::parse_tx_rate(const Entry& e, const std::string& ctx, const EndpointSchema& type,
+                           TxBudgetConfig& budget) const {
+    const std::string& text = scalar(e, ctx);
+    const std::string what = ctx + "'tx_rate': ";
+    if (text == "baud") {
+        if (std::string_view(type.type) != "uart")
+            fail(value_mark(e), what + "'baud' takes a UART's own baudrate; give a " +
+                                    type.title() + " endpoint a rate such as 5kB/s or 57600baud");
+        budget.uart_baud = budget.serial = true;
+        return;
+    }
+    auto rate = parse_tx_rate_text(text);
+    if (!rate)
+        fail(value_mark(e), what + "'" + text + "' is not a rate (e.g. 5kB/s, 5760B/s, " +
+                                "57600baud, or baud for a UART's own)");
+    if (*rate < kMinTxRate || *rate > kMaxTxRate)
+        fail(value_mark(e), what + text + " is outside " + std::to_string(kMinTxRate) +
+                                " B/s (one largest frame in 3 s) to 1GB/s");
+    budget.bytes_per_s = *rate;
+    budget.serial = text.ends_with("baud");
+}
+
+void Parser::parse_tx_classes(const Entry& section, TxClassesConfig& classes) const {
+    const std::string ctx = "tx_classes: ";
+    static const std::set<std::string_view> kKeys = {"control", "bulk", "caps"};
+    MapView view = section_view(section, ctx, kKeys);
+    auto sorted = [](std::vector<uint32_t> ids) {
+        std::sort(ids.begin(), ids.end());
+        ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+        return ids;
+    };
+    if (const Entry* e = view.find("control"))
+        classes.control = sorted(message_ids(*e, ctx));
+    if (const Entry* e = view.find("bulk"))
+        classes.bulk = sorted(message_ids(*e, ctx));
+    for (const char* key : {"control", "bulk"}) {
+        const Entry* e = view.find(key);
+        if (!e)
+            continue;
+        const auto& other = std::string_view(key) == "control" ? classes.bulk : classes.control;
+        for (uint32_t id : message_ids(*e, ctx)) {
+            if (std::binary_search(other.begin(), other.end(), id))
+                fail(value_mark(*e), ctx + "message " + message_label(id) +
+                                         " is in both control and bulk (a list not given is "
+                                         "the default one, mavbond.yaml(5))");
+        }
+    }
+    if (const Entry* e = view.find("caps")) {
+        if (!e->value.IsMap())
+            fail(value_mark(*e), ctx + "'caps' must be a map of message: rate (e.g. "
+                                       "ATTITUDE: 10Hz), not " + kind_name(e->value));
+        classes.caps.clear();
+        MapView caps = make_view(e->value);
+        check_keys(caps, ctx + "caps: ", nullptr);
+        for (const Entry& cap : caps.entries) {
+            std::string where = ctx + "caps: '" + cap.name + "': ";
+            auto id = message_id(cap.name);
+            if (!id)
+                fail(cap.key.Mark(), where + "unknown message");
+            for (const auto* list : {&classes.control, &classes.bulk}) {
+                if (std::binary_search(list->begin(), list->end(), *id))
+                    fail(cap.key.Mark(), where + "a cap thins telemetry; this message is " +
+                                                 (list == &classes.control ? "control" : "bulk"));
+            }
+            const std::string& text = scalar(cap, where);
+            auto hz = parse_hertz(text);
+            if (!hz)
+                fail(value_mark(cap), where + "'" + text + "' is not a rate in Hz greater than "
+                                              "0 and at most 1000 (e.g. 10Hz, 0.5Hz)");
+            classes.caps.emplace_back(*id, Duration(static_cast<int64_t>(1e9 / *hz)));
+        }
+        std::sort(classes.caps.begin(), classes.caps.end());
+    }
+}
+
 void Parser::parse_link_events(const Entry& section) {
     const std::string ctx = "link_events: ";
-    if (!section.value.IsMap())
-        fail(value_mark(section), ctx + "must be a map of keys, not " + kind_name(section.value));
-    MapView view = make_view(section.value);
     static const std::set<std::string_view> kKeys = {"statustext", "silent_after", "min_interval"};
-    check_keys(view, ctx, &kKeys);
+    MapView view = section_view(section, ctx, kKeys);
     LinkEventsConfig& ev = config_.link_events;
     ev.enabled = true;
     if (const Entry* e = view.find("statustext"))

@@ -45,6 +45,27 @@ struct SigningConfig {
     bool operator==(const SigningConfig&) const = default;
 };
 
+/// `tx_classes:`: the order in which a link with a budget (`tx_rate`) spends it. Control goes
+/// at once, always; telemetry (every message in neither list) waits for the budget, the newest
+/// sample of each message from each source winning, each at most at its cap; bulk waits in
+/// order behind telemetry.
+struct TxClassesConfig {
+    std::vector<uint32_t> control;  // sorted
+    std::vector<uint32_t> bulk;     // sorted
+    std::vector<std::pair<uint32_t, Duration>> caps;  // message id, least interval; sorted
+    bool operator==(const TxClassesConfig&) const = default;
+};
+
+/// An endpoint's `tx_rate:` and the classes it spends it by.
+struct TxBudgetConfig {
+    uint64_t bytes_per_s = 0;  // what the line carries of frame bytes; 0: no budget
+    bool uart_baud = false;    // `tx_rate: baud`: the UART's own baudrate (set when it opens)
+    bool serial = false;       // given in baud: a serial line, so no datagram headers charged
+    TxClassesConfig classes;   // the file's `tx_classes:` (or their defaults)
+    bool enabled() const { return bytes_per_s != 0 || uart_baud; }
+    bool operator==(const TxBudgetConfig&) const = default;
+};
+
 /// One `endpoints:` entry: the keys every endpoint takes, and its type's own (`options`, read
 /// by its schema's table).
 struct EndpointConfig {
@@ -52,6 +73,7 @@ struct EndpointConfig {
     const EndpointSchema* schema = nullptr;  // its type (and mode); the tables live for the run
     EndpointOptions options;                 // the keys of its type's table
     size_t tx_queue_bytes = 16384;           // bounded transmit queue
+    TxBudgetConfig tx_budget;                // key `tx_rate` (and the file's `tx_classes`)
     MessageFilterConfig filter_in;           // keys allow_in / block_in
     MessageFilterConfig filter_out;          // keys allow_out / block_out
     std::string bond;                        // bond name ("" = none)

@@ -44,6 +44,18 @@ const std::map<std::string, const char*>& renumber_help() {
     return help;
 }
 
+/// Help texts of a budget's per-class counters (label `class`), in their for_each_counter names.
+const std::map<std::string, const char*>& tx_class_help() {
+    static const std::map<std::string, const char*> help = {
+        {"frames", "Frames of the class a budgeted endpoint (tx_rate) handed to its line."},
+        {"bytes", "Bytes of them, with the link's framing (IP and UDP headers) charged."},
+        {"waited", "Of those frames, the ones held for the budget or a cap first."},
+        {"thinned", "Telemetry replaced, while held, by a newer sample of the same message."},
+        {"dropped", "Bulk dropped (oldest first) from a full queue; telemetry without a slot."},
+    };
+    return help;
+}
+
 int64_t ms_since(TimePoint t, TimePoint now) {
     return std::chrono::duration_cast<milliseconds>(now - t).count();
 }
@@ -53,7 +65,7 @@ int64_t ms_since(TimePoint t, TimePoint now) {
 Status::Endpoint endpoint_status(const Endpoint& e) {
     return Status::Endpoint{e.name(), e.kind(), e.config().bond,
                             e.config().signing.enabled && e.config().signing.require,
-                            e.total_counters()};
+                            e.budget() ? e.budget()->bytes_per_s() : 0, e.total_counters()};
 }
 
 std::string status_json(const Status& s) {
@@ -70,7 +82,20 @@ std::string status_json(const Status& s) {
         // Milliseconds since a frame last came in; -1: never.
         TimePoint last = e.counters.last_rx;
         out += ",\"last_rx_ms_ago\":" +
-               std::to_string(last == TimePoint{} ? -1 : ms_since(last, s.taken)) + "}";
+               std::to_string(last == TimePoint{} ? -1 : ms_since(last, s.taken));
+        if (e.tx_rate) {
+            out += ",\"tx_budget\":{\"rate\":" + std::to_string(e.tx_rate);
+            for (size_t c = 0; c < kTxClassCount; c++) {
+                out += std::string(",\"") + kTxClassNames[c] + "\":{";
+                for_each_counter(e.counters.tx_class[c], [&out](const char* name, uint64_t v) {
+                    out += std::string(out.back() == '{' ? "\"" : ",\"") + name + "\":" +
+                           std::to_string(v);
+                });
+                out += "}";
+            }
+            out += "}";
+        }
+        out += "}";
     }
     out += "],\"bonds\":[";
     for (size_t i = 0; i < s.bonds.size(); i++) {
@@ -114,6 +139,19 @@ MetricSet status_metrics(const Status& s) {
             set.counter(std::string("mavbond_endpoint_") + name,
                         help == counter_help().end() ? name : help->second, value, labels);
         });
+        if (e.tx_rate) {
+            set.gauge("mavbond_endpoint_tx_rate_bytes",
+                      "The endpoint's transmit budget (tx_rate), bytes a second.",
+                      static_cast<double>(e.tx_rate), labels);
+            for (size_t c = 0; c < kTxClassCount; c++) {
+                MetricLabels with_class = labels;
+                with_class.emplace_back("class", kTxClassNames[c]);
+                for_each_counter(e.counters.tx_class[c], [&](const char* name, uint64_t v) {
+                    set.counter(std::string("mavbond_endpoint_tx_class_") + name,
+                                tx_class_help().at(name), v, with_class);
+                });
+            }
+        }
         // "Last heard" for alerts on a silent link; absent until the first frame.
         if (e.counters.last_rx != TimePoint{})
             set.gauge("mavbond_endpoint_last_rx_age_seconds",
@@ -160,6 +198,15 @@ std::string counters_line(const Status::Endpoint& e, const char* what) {
     for_each_counter(e.counters, [&line](const char* name, uint64_t value) {
         line += std::string(" ") + name + "=" + std::to_string(value);
     });
+    if (e.tx_rate) {
+        line += " tx_rate=" + std::to_string(e.tx_rate);
+        for (size_t c = 0; c < kTxClassCount; c++) {
+            for_each_counter(e.counters.tx_class[c], [&](const char* name, uint64_t value) {
+                line += std::string(" ") + kTxClassNames[c] + "_" + name + "=" +
+                        std::to_string(value);
+            });
+        }
+    }
     return line;
 }
 

@@ -23,6 +23,7 @@ struct Status {
         std::string kind;  // "udp-server", "uart", ...
         std::string bond;  // "" when not in one
         bool signing_required = false;
+        uint64_t tx_rate = 0;  // its budget in bytes a second (tx_rate); 0: none
         LinkCounters counters;
     };
     struct BondLink {

@@ -17,15 +17,31 @@ bool MessageFilter::passes(uint32_t msgid) const {
     return !has(config_.block);
 }
 
-Endpoint::Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
-                   const Endpoint* parent, Role role)
-    : Link(std::move(name), config.name, config.bond, role == Role::Recorder), config_(config),
-      tx_(mode, config.tx_queue_bytes),
+namespace {
+
+// What a datagram carries beyond its frame on the way out: IPv4 and UDP headers.
+constexpr uint32_t kDatagramOverhead = 20 + 8;
+
+}  // namespace
+
+Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
+                   TxQueue::Mode mode, const Endpoint* parent, Role role)
+    : Link(std::move(name), config.name, config.bond, role == Role::Recorder), loop_(loop),
+      config_(config), tx_(mode, config.tx_queue_bytes),
       filter_in_(config_.filter_in), filter_out_(config_.filter_out) {
     if (parent)
         verifier_ = parent->verifier_;
     else if (config.signing.enabled)
         verifier_ = std::make_shared<SignatureVerifier>(config.signing.key);
+    const TxBudgetConfig& b = config_.tx_budget;
+    if (b.enabled()) {
+        // A UART's own rate: 8N1 puts 10 bits on the line for each byte. A rate in baud is
+        // a serial line's (a radio behind the datagrams): no headers go over it.
+        uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
+        bool headers = mode == TxQueue::Mode::Datagram && !b.serial;
+        budget_ = std::make_unique<TxBudget>(rate, headers ? kDatagramOverhead : 0, b.classes,
+                                             config_.tx_queue_bytes, stats_.tx_class);
+    }
 }
 
 Endpoint::~Endpoint() = default;
@@ -81,6 +97,10 @@ bool Endpoint::send(const Frame& frame) {
         stats_.tx_dropped++;
         return false;
     }
+    if (budget_ && !budget_->offer(frame, loop_.now())) {
+        release_budgeted();  // it waits (or a cap or its class's turn holds it)
+        return false;
+    }
     bool was_clean = !tx_.has_lent();
     if (!tx_.lend(frame.bytes)) {
         flush();
@@ -88,6 +108,33 @@ bool Endpoint::send(const Frame& frame) {
         was_clean = true;
     }
     return was_clean;
+}
+
+void Endpoint::lend_now(std::span<const uint8_t> frame) {
+    if (!ready()) {
+        stats_.tx_dropped++;
+        return;
+    }
+    if (!tx_.lend(frame)) {
+        flush();
+        tx_.lend(frame);
+    }
+    flush();
+}
+
+void Endpoint::release_budgeted() {
+    const TimePoint now = loop_.now();
+    // A held frame's bytes are the budget's until its next call: each goes out at once.
+    TimePoint due = budget_->release(now, [this](std::span<const uint8_t> b) { lend_now(b); });
+    if (due == TimePoint::max() || (budget_timer_.active() && budget_due_ <= due))
+        return;
+    budget_due_ = due;
+    budget_timer_ = loop_.schedule(std::max(due - now, Duration(1)), [this] {
+        budget_timer_.cancel();
+        budget_due_ = TimePoint::max();
+        release_budgeted();
+        return Duration::zero();
+    });
 }
 
 int Endpoint::write_datagrams(const iovec*, size_t) { return -ENOTSUP; }
@@ -122,6 +169,8 @@ void Endpoint::flush() {
 }
 
 void Endpoint::finish(TimePoint deadline) {
+    if (budget_)  // what the budget held goes now, or is counted below with the rest
+        budget_->drain(loop_.now(), [this](std::span<const uint8_t> bytes) { lend_now(bytes); });
     flush();
     while (tx_.mid_frame() && wait_writable(deadline))
         flush();
@@ -135,7 +184,7 @@ void Endpoint::finish(TimePoint deadline) {
 }
 
 void Endpoint::clear_tx() {
-    stats_.tx_dropped += tx_.clear();
+    stats_.tx_dropped += tx_.clear() + (budget_ ? budget_->clear() : 0);
     on_backlog(false);
 }
 

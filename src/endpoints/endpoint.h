@@ -12,6 +12,8 @@
 #include <vector>
 
 #include "config/config.h"
+#include "core/event_loop.h"
+#include "endpoints/tx_budget.h"
 #include "endpoints/tx_queue.h"
 #include "mavlink/frame.h"
 #include "mavlink/frame_parser.h"
@@ -44,7 +46,7 @@ public:
     /// while the endpoints it did not change keep running. A child (a UDP peer, a TCP
     /// connection) names its `parent` server: they share one signature verifier, so a frame
     /// replayed from a new address is still a replay.
-    Endpoint(const EndpointConfig& config, std::string name, TxQueue::Mode mode,
+    Endpoint(const EndpointConfig& config, std::string name, EventLoop& loop, TxQueue::Mode mode,
              const Endpoint* parent = nullptr, Role role = Role::Link);
     ~Endpoint() override;
 
@@ -72,6 +74,11 @@ public:
     /// for the peer until `deadline`), and the rest is counted as dropped, so the final
     /// counters account for every frame.
     virtual void finish(TimePoint deadline);
+
+    /// The loop it runs on (its children run on it too).
+    EventLoop& loop() const { return loop_; }
+    /// Its transmit budget (`tx_rate`), or null.
+    const TxBudget* budget() const { return budget_.get(); }
 
     /// Counters of this endpoint alone.
     const LinkCounters& counters() const override { return stats_; }
@@ -101,10 +108,15 @@ protected:
     void defer(EventLoop& loop, std::function<void()> fn);
 
     LinkCounters stats_;
+    EventLoop& loop_;
 
 private:
     /// Whether the frame passes the `signing:` check (counted when it does not).
     bool authentic(const Frame& frame);
+    /// Sends what the budget lets go now and sets the timer for the rest.
+    void release_budgeted();
+    /// Writes a frame whose bytes live only during the call (the budget's copies).
+    void lend_now(std::span<const uint8_t> frame);
 
     const EndpointConfig config_;  // before the filters, which point into it
     TxQueue tx_;
@@ -112,6 +124,9 @@ private:
     MessageFilter filter_in_;
     MessageFilter filter_out_;
     std::shared_ptr<SignatureVerifier> verifier_;  // null unless the config has `signing:`
+    std::unique_ptr<TxBudget> budget_;  // null unless the config has `tx_rate:`
+    EventLoop::Timer budget_timer_;     // runs while the budget holds frames
+    TimePoint budget_due_ = TimePoint::max();
 };
 
 /// Builds one endpoint of `config` (whose global settings it takes), its links attached to

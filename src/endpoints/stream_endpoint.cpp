@@ -28,7 +28,7 @@ Backoff reconnect_backoff(const EndpointConfig& config) {
 
 StreamEndpoint::StreamEndpoint(const EndpointConfig& config, std::string name, EventLoop& loop,
                                FrameSink& sink, UnknownIdPolicy policy, const Endpoint* parent)
-    : Endpoint(config, std::move(name), TxQueue::Mode::Stream, parent), loop_(loop), sink_(sink),
+    : Endpoint(config, std::move(name), loop, TxQueue::Mode::Stream, parent), sink_(sink),
       parser_(policy, 8192) {}
 
 StreamEndpoint::~StreamEndpoint() = default;

@@ -58,7 +58,6 @@ protected:
     void on_write_error(int err) override;
     bool wait_writable(TimePoint deadline) override;
 
-    EventLoop& loop_;
     FrameSink& sink_;
 
 private:

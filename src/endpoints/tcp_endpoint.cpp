@@ -42,7 +42,7 @@ const EndpointSchema kTcpClientType = {"tcp", "client",
 // --- TcpConnection -------------------------------------------------------------------------
 
 TcpConnection::TcpConnection(TcpServer& server, const sockaddr_in& peer)
-    : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop_,
+    : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop(),
                      server.sink_, server.policy_, &server),
       server_(server) {}
 
@@ -75,7 +75,7 @@ Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config,
 
 TcpServer::TcpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Stream), loop_(loop), sink_(sink),
+    : Endpoint(config, config.name, loop, TxQueue::Mode::Stream), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
 TcpServer::~TcpServer() = default;

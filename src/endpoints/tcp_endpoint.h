@@ -49,7 +49,6 @@ private:
     void drop_client(TcpConnection& client);
 
     static constexpr size_t kMaxClients = 32;
-    EventLoop& loop_;
     FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;

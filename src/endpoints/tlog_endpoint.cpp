@@ -59,8 +59,8 @@ std::unique_ptr<TlogEndpoint> TlogEndpoint::open(const EndpointConfig& config, E
 }
 
 TlogEndpoint::TlogEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram, nullptr, Role::Recorder),
-      loop_(loop), sink_(sink),
+    : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram, nullptr, Role::Recorder),
+      sink_(sink),
       writer_(config.name, config.options.text("directory"), config.options.number("max_size"),
               kRingBytes) {}
 

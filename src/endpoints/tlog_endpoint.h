@@ -39,7 +39,6 @@ protected:
 private:
     TlogEndpoint(const EndpointConfig& config, EventLoop& loop, FrameSink& sink);
 
-    EventLoop& loop_;
     FrameSink& sink_;
     TlogWriter writer_;
     EventLoop::Timer retry_timer_;  // flushes the backlog while the ring is full

@@ -119,8 +119,8 @@ int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in*
 // --- UdpPeer -------------------------------------------------------------------------------
 
 UdpPeer::UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now)
-    : Endpoint(server.config(), server.name() + "@" + to_string(addr), TxQueue::Mode::Datagram,
-               &server),
+    : Endpoint(server.config(), server.name() + "@" + to_string(addr), server.loop(),
+               TxQueue::Mode::Datagram, &server),
       server_(server), addr_(addr), last_heard_(now) {}
 
 int UdpPeer::write_datagrams(const iovec* frames, size_t count) {
@@ -157,7 +157,7 @@ Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config,
 
 UdpServer::UdpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), sink_(sink),
+    : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
 UdpServer::~UdpServer() {
@@ -210,6 +210,7 @@ void UdpServer::forget_silent_peers() {
                  to_string(peer->address()).c_str(),
                  std::chrono::duration<double>(now - peer->last_heard()).count());
         sink_.detach(*peer);
+        peer->finish(now);  // what waits for it goes now (a datagram never waits), counted
         retired_ += peer->counters();
         if (last_peer_ == peer.get())
             last_peer_ = nullptr;
@@ -286,7 +287,7 @@ Result<std::unique_ptr<UdpClient>> UdpClient::open(const EndpointConfig& config,
 
 UdpClient::UdpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
                      UnknownIdPolicy policy, UniqueFd fd)
-    : Endpoint(config, config.name, TxQueue::Mode::Datagram), loop_(loop), sink_(sink),
+    : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram), sink_(sink),
       policy_(policy), fd_(std::move(fd)) {}
 
 UdpClient::~UdpClient() {

@@ -99,7 +99,6 @@ private:
     void forget_silent_peers();
 
     static constexpr size_t kMaxPeers = 64;
-    EventLoop& loop_;
     FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;
@@ -131,7 +130,6 @@ private:
               UniqueFd fd);
     void on_events(uint32_t events);
 
-    EventLoop& loop_;
     FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;  // connected to the peer

@@ -27,7 +27,8 @@ int usage(FILE* out, int code) {
             "       mavbondctl [-s SOCKET] watch [--interval S] [--count N]\n"
             "Prints the status of a running mavbond: endpoints, bonds, links and filters.\n"
             "watch: one line per link (bond, loss, frames/s received, last frame received,\n"
-            "* for a bond's active link), refreshed every S seconds (default 1), N times\n"
+            "* for a bond's active link; under a link with tx_rate, its frames/s per class),\n"
+            "refreshed every S seconds (default 1), N times\n"
             "(default: until interrupted); redrawn in place on a terminal, else one block each.\n\n"
             "  -s, --socket PATH  the daemon's status_socket (default %s)\n"
             "      --json         print the daemon's JSON document as it is (for scripts)\n"
@@ -69,6 +70,8 @@ std::string fetch(const std::string& path) {
     return doc;
 }
 
+constexpr const char* kClasses[] = {"control", "telemetry", "bulk"};  // a budget's, in order
+
 std::string fmt_pct(double v) {
     char b[32];
     snprintf(b, sizeof b, "%.2f%%", v);
@@ -93,6 +96,20 @@ void print_table(const pt::ptree& doc) {
         if (unsigned_ + bad + replay > 0)
             printf("signing %s: %llu unsigned, %llu bad signature, %llu replayed or stale\n",
                    e.get("name", "").c_str(), unsigned_, bad, replay);
+    }
+    // Budgeted endpoints (tx_rate): what each class sent, waited, lost to thinning or overflow.
+    for (const auto& [_, e] : doc.get_child("endpoints", {})) {
+        auto budget = e.get_child_optional("tx_budget");
+        if (!budget)
+            continue;
+        printf("budget %s: %s B/s;", e.get("name", "").c_str(), budget->get("rate", "").c_str());
+        for (const char* c : kClasses)
+            printf(" %s %s frames (%s waited, %s thinned, %s dropped)%s", c,
+                   budget->get(std::string(c) + ".frames", "0").c_str(),
+                   budget->get(std::string(c) + ".waited", "0").c_str(),
+                   budget->get(std::string(c) + ".thinned", "0").c_str(),
+                   budget->get(std::string(c) + ".dropped", "0").c_str(),
+                   c == kClasses[2] ? "\n" : ",");
     }
     if (auto refused = doc.get("status_refused", 0ull); refused > 0)
         printf("status socket: %llu connections refused (credentials)\n", refused);
@@ -189,10 +206,9 @@ std::string fmt_ago(long long ms) {
     return b;
 }
 
-/// One refresh of `watch`. `prev_rx` holds each endpoint's rx_frames of the refresh before
-/// (`dt` seconds ago); the first refresh has no rate yet.
-void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& prev_rx,
-                       double dt) {
+/// One refresh of `watch`. `prev` holds the counters of the refresh before (`dt` seconds ago),
+/// by endpoint and counter; the first refresh has no rates yet.
+void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& prev, double dt) {
     std::map<std::string, std::string> active;  // bond -> its active link
     if (const auto bonds = doc.get_child_optional("bonds")) {
         for (const auto& [_, b] : *bonds)
@@ -204,30 +220,49 @@ void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& pr
     printf("mavbond %s, up %s s, %s\n", doc.get("version", "?").c_str(),
            doc.get("uptime_s", "?").c_str(), clock);
     printf("  %-24s %-10s %8s %10s %10s\n", "LINK", "BOND", "LOSS", "RX/S", "LAST RX");
-    std::map<std::string, uint64_t> now_rx;
+    std::map<std::string, uint64_t> now;
+    // A counter's rate since the refresh before, as text ("-" on the first).
+    auto per_second = [&](const std::string& key, uint64_t value) -> std::string {
+        now[key] = value;
+        auto it = prev.find(key);
+        if (it == prev.end() || dt <= 0)
+            return "-";
+        char b[32];
+        snprintf(b, sizeof b, "%.1f", static_cast<double>(value - it->second) / dt);
+        return b;
+    };
     const auto endpoints = doc.get_child_optional("endpoints");
     for (const auto& [_, e] : endpoints ? *endpoints : pt::ptree()) {
         std::string name = e.get("name", "");
         std::string bond = e.get("bond", "");
-        auto rx = e.get<uint64_t>("rx_frames", 0);
-        now_rx[name] = rx;
-        char rate[32] = "-";
-        if (auto it = prev_rx.find(name); it != prev_rx.end() && dt > 0)
-            snprintf(rate, sizeof rate, "%.1f", static_cast<double>(rx - it->second) / dt);
+        std::string rate = per_second(name + "/rx_frames", e.get<uint64_t>("rx_frames", 0));
         double loss = link_loss_pct(doc, name);
         // The active link is the endpoint itself or one of its peers ("name@address").
         const std::string& act = active[bond];
         char marker = !bond.empty() && (act == name || act.rfind(name + "@", 0) == 0) ? '*' : ' ';
         printf("%c %-24s %-10s %8s %10s %10s\n", marker, name.c_str(), bond.empty() ? "-" : bond.c_str(),
-               loss < 0 ? "-" : fmt_pct(loss).c_str(), rate,
+               loss < 0 ? "-" : fmt_pct(loss).c_str(), rate.c_str(),
                fmt_ago(e.get<long long>("last_rx_ms_ago", -1)).c_str());
+        // A budgeted link: frames/s out per class, and what thinning and overflow took.
+        if (auto budget = e.get_child_optional("tx_budget")) {
+            printf("    tx %s B/s:", budget->get("rate", "").c_str());
+            for (const char* c : kClasses) {
+                std::string key = name + "/" + c;
+                std::string sent =
+                    per_second(key, budget->get<uint64_t>(std::string(c) + ".frames", 0));
+                uint64_t lost = budget->get<uint64_t>(std::string(c) + ".thinned", 0) +
+                                budget->get<uint64_t>(std::string(c) + ".dropped", 0);
+                printf(" %s %s/s (%s/s thinned or dropped)%s", c, sent.c_str(),
+                       per_second(key + "/lost", lost).c_str(), c == kClasses[2] ? "\n" : ",");
+            }
+        }
     }
-    prev_rx = std::move(now_rx);
+    prev = std::move(now);
 }
 
 int watch(const std::string& socket_path, double interval, long count) {
     bool tty = isatty(STDOUT_FILENO) != 0;
-    std::map<std::string, uint64_t> prev_rx;
+    std::map<std::string, uint64_t> prev;
     auto last = std::chrono::steady_clock::now();
     for (long i = 0; count <= 0 || i < count; i++) {
         if (i > 0)
@@ -245,7 +280,7 @@ int watch(const std::string& socket_path, double interval, long count) {
             fputs("\033[H\033[2J", stdout);  // home and clear: redraw in place
         else if (i > 0)
             fputs("\n", stdout);  // a blank line between blocks
-        print_watch_block(tree, prev_rx, dt);
+        print_watch_block(tree, prev, dt);
         fflush(stdout);
     }
     return 0;

@@ -3,6 +3,7 @@
 // only through this class and never includes an endpoint's header.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 
@@ -11,6 +12,28 @@
 #include "mavlink/frame_parser.h"
 
 namespace mavbond {
+
+/// What a link with a transmit budget (`tx_rate`) did with one class of frames
+/// (src/endpoints/tx_budget.h): control, telemetry, bulk.
+struct TxClassCounters {
+    uint64_t frames = 0;   // handed to the line
+    uint64_t bytes = 0;    // of them, with the link's framing charged
+    uint64_t waited = 0;   // of them, held for the budget (or a cap) first
+    uint64_t thinned = 0;  // replaced, while held, by a newer sample of the same message
+    uint64_t dropped = 0;  // bulk: the oldest when the queue was full; telemetry: no slot left
+};
+constexpr size_t kTxClassCount = 3;
+constexpr const char* kTxClassNames[kTxClassCount] = {"control", "telemetry", "bulk"};
+
+/// Calls f(name, value) for each of a class's counters, in one order.
+template <typename F>
+void for_each_counter(const TxClassCounters& c, F&& f) {
+    f("frames", c.frames);
+    f("bytes", c.bytes);
+    f("waited", c.waited);
+    f("thinned", c.thinned);
+    f("dropped", c.dropped);
+}
 
 /// A link's counters (and an endpoint's, summed over its links): what the status socket,
 /// /metrics, the log lines and the plugins' link_counters show.
@@ -27,6 +50,7 @@ struct LinkCounters {
     uint64_t sig_bad = 0;       // signing endpoints: dropped, signature does not verify
     uint64_t sig_replay = 0;    // signing endpoints: dropped, timestamp replayed or too old
     TimePoint last_rx{};        // when a frame last came in (epoch: never); not a counter
+    std::array<TxClassCounters, kTxClassCount> tx_class{};  // with a budget only (see above)
 
     LinkCounters& operator+=(const LinkCounters& o);
 };

@@ -2,6 +2,7 @@
 read its counters, talk to it over UDP/TCP/pty, build frames with pymavlink."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -435,6 +436,19 @@ class Pty:
         if self.master >= 0:
             os.close(self.master)
             self.master = -1
+
+
+def status_document(path, timeout: float = 5.0) -> dict:
+    """The daemon's status socket: one JSON document, then the server closes."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(timeout)
+        s.connect(str(path))
+        data = b""
+        while True:
+            chunk = s.recv(65536)
+            if not chunk:
+                return json.loads(data)
+            data += chunk
 
 
 def split_stream(data: bytes) -> List[bytes]:

@@ -97,6 +97,31 @@ CASES = [
      ["identity: 'heartbeat': duration must be greater than 0"]),
     ("identity-heartbeat-no-unit", doc(UDP, top=f"identity:\n  heartbeat: {HERE}1\n"),
      ["identity: 'heartbeat': duration '1' needs a unit"]),
+    # --- transmit budgets: tx_rate on an endpoint, tx_classes ---------------------------------
+    ("endpoint-tx_rate-no-unit", doc(ep(tx_rate=f"{HERE}5000")),
+     ["'tx_rate': '5000' is not a rate (e.g. 5kB/s"]),
+    ("endpoint-tx_rate-baud-on-udp", doc(ep(tx_rate=f"{HERE}baud")),
+     ["'baud' takes a UART's own baudrate"]),
+    ("endpoint-tx_rate-too-slow", doc(ep(**UART, tx_rate=f"{HERE}300baud")),
+     ["'tx_rate': 300baud is outside 100 B/s"]),
+    ("tlog-tx_rate", doc(ep(**TLOG, **{f"{HERE}tx_rate": "5kB/s"})),
+     ["key 'tx_rate' does not apply to a tlog endpoint"]),
+    ("tx_classes-scalar", doc(UDP, top=f"tx_classes: {HERE}yes\n"),
+     ["tx_classes: must be a map of keys, not a scalar"]),
+    ("tx_classes-unknown-key", doc(UDP, top=f"tx_classes:\n  {HERE}commands: [0]\n"),
+     ["tx_classes: unknown key 'commands'"]),
+    ("tx_classes-control-unknown-message",
+     doc(UDP, top=f"tx_classes:\n  control: [{HERE}NOPE]\n"),
+     ["tx_classes: 'control': unknown message 'NOPE'"]),
+    ("tx_classes-bulk-also-control",
+     doc(UDP, top=f"tx_classes:\n  bulk: {HERE}[HEARTBEAT]\n"),
+     ["message HEARTBEAT (0) is in both control and bulk"]),
+    ("tx_classes-caps-on-control",
+     doc(UDP, top=f"tx_classes:\n  caps: {{{HERE}COMMAND_LONG: 1Hz}}\n"),
+     ["a cap thins telemetry; this message is control"]),
+    ("tx_classes-caps-not-hz",
+     doc(UDP, top=f"tx_classes:\n  caps: {{ATTITUDE: {HERE}100ms}}\n"),
+     ["'100ms' is not a rate in Hz"]),
     # --- link_events ----------------------------------------------------------------------
     ("link_events-empty", doc(UDP, top=f"{HERE}link_events:\n"),
      ["link_events: must be a map of keys, not nothing"]),
@@ -389,17 +414,18 @@ LOADER = REPO / "src" / "config" / "config.cpp"
 KNOWN_KEYS = {
     "top": {"log_level", "unknown_messages", "route_timeout", "report_interval", "plugin_dir",
             "status_socket", "endpoints", "bonds", "filters", "identity", "link_events",
-            "metrics"},
+            "metrics", "tx_classes"},
     "endpoint": {"name", "type", "mode", "address", "peer_timeout", "reconnect_min",
                  "reconnect_max", "device", "baud", "flow_control", "tx_queue", "allow_in",
                  "block_in", "allow_out", "block_out", "bond", "signing", "directory",
-                 "max_size", "rx_buffer"},
+                 "max_size", "rx_buffer", "tx_rate"},
     "signing": {"key_file", "require"},
     "bond": {"name", "tx", "renumber"},
     "filter": {"plugin", "enabled", "bonds", "endpoints"},
     "metrics": {"listen", "timeout", "max_connections"},
     "identity": {"sysid", "compid", "heartbeat"},
     "link_events": {"statustext", "silent_after", "min_interval"},
+    "tx_classes": {"control", "bulk", "caps"},
 }
 KNOWN_OPTIONS = {
     "dedup": {"window", "hash", "key", "drop_stale", "stale_after", "max_entries"},
@@ -455,9 +481,10 @@ def plugin_options(root: Path) -> dict[str, set[str]]:
 
 def test_cases_cover_every_key():
     """Every key the loader takes (per section: top level, endpoint, signing, bond, filter
-    entry, metrics, identity, link_events) and every option of the three plugins has a case.
-    A case id is words joined by '-'; it covers a key when one word is the key and, for a key
-    several sections share (name, bonds, endpoints), another is the section's name."""
+    entry, metrics, identity, link_events, tx_classes) and every option of the three plugins
+    has a case. A case id is words joined by '-'; it covers a key when one word is the key
+    and, for a key several sections share (name, bonds, endpoints), another is the section's
+    name."""
     sections = loader_keys(LOADER.read_text())
     options = plugin_options(REPO)
     print(f"\nfrom the sources: {sum(map(len, sections.values()))} keys in "

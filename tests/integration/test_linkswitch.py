@@ -11,9 +11,7 @@ on the status socket and its log, never from wall-clock timing.
 Runtime: about 70 s on 2 cores (one 40 s stream, two of 9 and 12 s, and config checks)."""
 from __future__ import annotations
 
-import json
 import re
-import socket
 import subprocess
 import threading
 import time
@@ -23,22 +21,9 @@ from typing import Dict, List
 
 import pytest
 
-from helpers import HOST, free_port, udp_server
+from helpers import HOST, free_port, status_document, udp_server
 from bonding_helpers import Receiver, paced_events, tlog
 from synth import ardupilot_stream
-
-
-def status_document(path: Path, timeout: float = 5.0) -> dict:
-    """The daemon's status socket: one JSON document, then the server closes."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(timeout)
-        s.connect(str(path))
-        data = b""
-        while True:
-            chunk = s.recv(65536)
-            if not chunk:
-                return json.loads(data)
-            data += chunk
 
 
 def linkswitch_bond(path: Path) -> dict:

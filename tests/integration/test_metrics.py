@@ -17,7 +17,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from helpers import (HOST, REPO, FrameMaker, free_port, recv_datagrams, rss_kib, rss_means_memory,
-                     udp_client, udp_server)
+                     status_document, udp_client, udp_server)
 from bonding_helpers import Receiver, paced_send, tlog
 from synth import ardupilot_stream
 
@@ -100,13 +100,6 @@ def value(m: Dict[str, object], name: str, **labels) -> float:
     assert key in samples, f"{name}{labels} not served; have: " + ", ".join(
         f"{n}{dict(l)}" for n, l in samples if n == name)
     return samples[key]
-
-
-def status_document(path: Path, timeout: float = 5.0) -> dict:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(timeout)
-        s.connect(str(path))
-        return json.loads(read_until_closed(s, timeout))
 
 
 def metrics_gateway(lab, tmp_path, **metrics):

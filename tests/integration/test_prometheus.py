@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from helpers import HOST, REPO, free_port, udp_server
+from helpers import HOST, REPO, free_port, status_document, udp_server
 from synth import ardupilot_stream
-from test_metrics import DASHBOARD, scrape, status_document, tcp_port, value
+from test_metrics import DASHBOARD, scrape, tcp_port, value
 
 PROMETHEUS = shutil.which("prometheus") or "/usr/bin/prometheus"
 SCRAPE_CONFIG = REPO / "conf" / "examples" / "prometheus-mavbond.yml"
@@ -147,8 +147,9 @@ class Prometheus:
 
 def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_path):
     """One vehicle's stream into a gateway with every kind of figure: a broadcast bond with
-    dedup (by content) and renumbering, an active-link bond with linkswitch, stats over both. Once the
-    traffic is over and Prometheus has scraped again, each documented family is stored, each
+    dedup (by content) and renumbering, an active-link bond with linkswitch, stats over both, a
+    transmit budget on the GCS server. Once the traffic is over and Prometheus has scraped
+    again, each documented family is stored, each
     series Prometheus holds has the value /metrics serves, and the status socket's counters
     come back from PromQL unchanged."""
     ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "gcs")}
@@ -158,7 +159,7 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_p
                      udp_server("a2", ports["a2"], bond="bonded"),
                      udp_server("b1", ports["b1"], bond="backup"),
                      udp_server("b2", ports["b2"], bond="backup"),
-                     udp_server("gcs", ports["gcs"])],
+                     udp_server("gcs", ports["gcs"], tx_rate="1MB/s")],
                     bonds=[{"name": "bonded", "tx": "broadcast", "renumber": True},
                            {"name": "backup", "tx": "active"}],
                     filters=[{"plugin": "dedup", "bonds": ["bonded"], "key": "content"},
@@ -235,6 +236,11 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_p
                 if isinstance(v, int) and not isinstance(v, bool) and k != "last_rx_ms_ago":
                     (r,) = prom.query(f'mavbond_endpoint_{k}_total{{endpoint="{ep["name"]}"}}')
                     assert float(r["value"][1]) == v, (ep["name"], k)
+            for c, counters in ep.get("tx_budget", {}).items():
+                for k, v in counters.items() if c != "rate" else ():
+                    (r,) = prom.query(f'mavbond_endpoint_tx_class_{k}_total'
+                                      f'{{endpoint="{ep["name"]}",class="{c}"}}')
+                    assert float(r["value"][1]) == v, (ep["name"], c, k)
         for b in st["bonds"]:
             (r,) = prom.query(f'mavbond_bond_switches_total{{bond="{b["name"]}"}}')
             assert float(r["value"][1]) == b["switches"]

@@ -590,6 +590,37 @@ const BadCase kBadCases[] = {
      "t.yaml:2:44: endpoint 'log': key 'allow_in' does not apply to a tlog endpoint"},
     {"DirectoryOnUdp", GCS "    directory: /l\n",
      "t.yaml:6:5: endpoint 'gcs': key 'directory' does not apply to a udp endpoint"},
+    // --- budgets and classes
+    {"TxRateNoUnit", GCS "    tx_rate: 5000\n",
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5000' is not a rate (e.g. 5kB/s, 5760B/s, "
+     "57600baud, or baud for a UART's own)"},
+    {"TxRateBitsPerSecond", GCS "    tx_rate: 5kb/s\n",
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': '5kb/s' is not a rate (e.g. 5kB/s, 5760B/s, "
+     "57600baud, or baud for a UART's own)"},
+    {"TxRateTooLow", GCS "    tx_rate: 50B/s\n",
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 50B/s is outside 100 B/s (one largest frame "
+     "in 3 s) to 1GB/s"},
+    {"TxRateBaudOnUdp", GCS "    tx_rate: baud\n",
+     "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 'baud' takes a UART's own baudrate; give a "
+     "udp server endpoint a rate such as 5kB/s or 57600baud"},
+    {"TxRateOnTlog", "endpoints:\n  - {name: log, type: tlog, directory: /l, tx_rate: 5kB/s}\n",
+     "t.yaml:2:44: endpoint 'log': key 'tx_rate' does not apply to a tlog endpoint"},
+    {"TxClassesUnknownKey", GCS "tx_classes: {controll: [HEARTBEAT]}\n",
+     "t.yaml:6:14: tx_classes: unknown key 'controll'"},
+    {"TxClassesUnknownMessage", GCS "tx_classes: {bulk: [FTP]}\n",
+     "t.yaml:6:21: tx_classes: 'bulk': unknown message 'FTP'"},
+    {"TxClassesBoth", GCS "tx_classes: {bulk: [HEARTBEAT]}\n",
+     "t.yaml:6:20: tx_classes: message HEARTBEAT (0) is in both control and bulk (a list "
+     "not given is the default one, mavbond.yaml(5))"},
+    {"TxClassesCapOnControl", GCS "tx_classes:\n  caps: {COMMAND_LONG: 1Hz}\n",
+     "t.yaml:7:10: tx_classes: caps: 'COMMAND_LONG': a cap thins telemetry; this message "
+     "is control"},
+    {"TxClassesCapNotHz", GCS "tx_classes:\n  caps: {ATTITUDE: 100ms}\n",
+     "t.yaml:7:20: tx_classes: caps: 'ATTITUDE': '100ms' is not a rate in Hz greater than "
+     "0 and at most 1000 (e.g. 10Hz, 0.5Hz)"},
+    {"TxClassesCapsNotMap", GCS "tx_classes:\n  caps: [ATTITUDE]\n",
+     "t.yaml:7:9: tx_classes: 'caps' must be a map of message: rate (e.g. ATTITUDE: 10Hz), "
+     "not a sequence"},
 };
 
 TEST(ConfigParse, IdentityLinkEventsAndRenumber) {
@@ -612,6 +643,37 @@ link_events: {silent_after: 1.5s, min_interval: 3s}
     EXPECT_TRUE(config->link_events.statustext) << "on by default once the section is there";
     EXPECT_EQ(milliseconds(1500), config->link_events.silent_after);
     EXPECT_EQ(seconds(3), config->link_events.min_interval);
+}
+
+TEST(ConfigParse, BudgetsAndTheirClasses) {
+    auto config = parse(R"(
+endpoints:
+  - {name: radio, type: uart, device: /dev/ttyUSB0, baud: 57600, tx_rate: baud}
+  - {name: lte, type: udp, mode: client, address: 127.0.0.1:14551, tx_rate: 2KiB/s}
+  - {name: sik, type: udp, mode: client, address: 127.0.0.1:14552, tx_rate: 57600baud}
+  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:14550}
+tx_classes:
+  bulk: [FILE_TRANSFER_PROTOCOL, 120]
+  caps: {ATTITUDE: 10Hz, GLOBAL_POSITION_INT: 0.5Hz}
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    const auto& eps = config->endpoints;
+    EXPECT_TRUE(eps[0].tx_budget.uart_baud);
+    EXPECT_EQ(2048u, eps[1].tx_budget.bytes_per_s);
+    EXPECT_EQ(5760u, eps[2].tx_budget.bytes_per_s);
+    EXPECT_TRUE(eps[2].tx_budget.serial) << "a rate in baud charges no datagram headers";
+    EXPECT_FALSE(eps[1].tx_budget.serial);
+    EXPECT_FALSE(eps[3].tx_budget.enabled());
+    EXPECT_TRUE(eps[3].tx_budget.classes.control.empty()) << "no budget, no classes";
+    const TxClassesConfig& c = eps[1].tx_budget.classes;
+    EXPECT_EQ(eps[0].tx_budget.classes, c);
+    EXPECT_EQ((std::vector<uint32_t>{110, 120}), c.bulk);
+    // Control kept its defaults: commands, their acks, HEARTBEAT.
+    for (uint32_t id : {0u, 76u, 77u})
+        EXPECT_TRUE(std::binary_search(c.control.begin(), c.control.end(), id)) << id;
+    ASSERT_EQ(2u, c.caps.size());
+    EXPECT_EQ(std::make_pair(30u, Duration(milliseconds(100))), c.caps[0]);
+    EXPECT_EQ(std::make_pair(33u, Duration(seconds(2))), c.caps[1]);
 }
 
 TEST(ConfigParse, WithoutTheSectionsMavbondSaysNothingOfItsOwn) {

@@ -37,8 +37,8 @@ public:
 /// An endpoint whose "socket" records the datagrams it was asked to send.
 class RecordingEndpoint : public Endpoint {
 public:
-    explicit RecordingEndpoint(const EndpointConfig& config)
-        : Endpoint(config, config.name, TxQueue::Mode::Datagram) {}
+    RecordingEndpoint(const EndpointConfig& config, EventLoop& loop)
+        : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram) {}
     const char* kind() const override { return "test"; }
     std::vector<std::vector<uint8_t>> written;
 
@@ -79,13 +79,14 @@ protected:
         c.name = name;
         return c;
     }
+    std::unique_ptr<EventLoop> loop_ = EventLoop::create().value();
     RecordingSink sink_;
 };
 
 TEST_F(EndpointTest, AllowInRefusalsReachRoutingToTeachTheirSourceOnly) {
     EndpointConfig c = config("autopilot");
     c.filter_in.allow = {kHeartbeat};
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     receive(e, {datagram(kHeartbeat), datagram(kAttitude, 1)});
     ASSERT_EQ(2u, sink_.handed.size());
     EXPECT_EQ(kHeartbeat, sink_.handed[0].msgid);
@@ -100,7 +101,7 @@ TEST_F(EndpointTest, AllowInRefusalsReachRoutingToTeachTheirSourceOnly) {
 TEST_F(EndpointTest, BlockOutDropsAndCounts) {
     EndpointConfig c = config("gcs");
     c.filter_out.block = {kAttitude};
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     auto att = datagram(kAttitude);
     auto hb = datagram(kHeartbeat);
     Frame f;
@@ -120,7 +121,7 @@ TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
     EndpointConfig c = config("radio");
     c.signing.enabled = true;
     c.signing.key.fill(7);
-    RecordingEndpoint e(c);
+    RecordingEndpoint e(c, *loop_);
     receive(e, {datagram(kHeartbeat)});
     EXPECT_TRUE(sink_.handed.empty());
     EXPECT_EQ(1u, e.counters().sig_unsigned);
@@ -128,13 +129,63 @@ TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
 }
 
 TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
-    RecordingEndpoint e(config("radio"));
+    RecordingEndpoint e(config("radio"), *loop_);
     std::vector<std::vector<uint8_t>> many;
     for (size_t i = 0; i < ReceivedBatch::kCapacity + 3; i++)
         many.push_back(datagram(kHeartbeat, static_cast<uint8_t>(i)));
     receive(e, many);
     EXPECT_EQ(ReceivedBatch::kCapacity + 3, sink_.handed.size());
     EXPECT_EQ(1, sink_.batches) << "one end of batch, after the read";
+}
+
+TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
+    // 10 kB/s on a datagram link: an ATTITUDE costs its (up to) 40 bytes plus 28 of headers,
+    // and the bucket holds 308 (one largest frame and its headers). A burst of 20 (from 20
+    // sources, so none is thinned) sends the first four at once; the rest go on the
+    // endpoint's timer, in order, with no one flushing.
+    EndpointConfig c = config("lte");
+    c.tx_budget.bytes_per_s = 10000;
+    c.tx_budget.classes.control = {kHeartbeat};
+    RecordingEndpoint e(c, *loop_);
+    std::vector<std::vector<uint8_t>> sent;
+    ParserCounters counters;
+    for (uint8_t i = 0; i < 20; i++) {
+        std::array<uint8_t, kMaxFrameLen> buf{};
+        std::vector<uint8_t> payload(28, i);
+        size_t n = write_frame_v2(buf, FrameSource{static_cast<uint8_t>(i + 1), 1, i}, kAttitude,
+                                  payload);
+        sent.emplace_back(buf.begin(), buf.begin() + static_cast<ptrdiff_t>(n));
+        Frame f;
+        ASSERT_TRUE(DatagramParser(sent.back(), UnknownIdPolicy::Forward, counters).next(f));
+        e.send(f);
+    }
+    e.flush();
+    const size_t at_once = e.written.size();
+    EXPECT_EQ(4u, at_once);
+    // A heartbeat (control) goes at once, ahead of every frame still held.
+    auto hb = datagram(kHeartbeat);
+    Frame f;
+    ASSERT_TRUE(DatagramParser(hb, UnknownIdPolicy::Forward, counters).next(f));
+    e.send(f);
+    e.flush();
+    ASSERT_EQ(at_once + 1, e.written.size());
+    EXPECT_EQ(hb, e.written.back());
+    // The loop runs the budget's timer until everything went (16 x 68 bytes: 0.1 s).
+    auto deadline = Clock::now() + seconds(5);
+    while (e.written.size() < 21 && Clock::now() < deadline)
+        loop_->run_once(milliseconds(50));
+    ASSERT_EQ(21u, e.written.size());
+    std::vector<std::vector<uint8_t>> telemetry(e.written.begin(), e.written.end());
+    telemetry.erase(telemetry.begin() + static_cast<ptrdiff_t>(at_once));
+    EXPECT_EQ(sent, telemetry) << "every one, in the order sent";
+    const TxClassCounters& t = e.counters().tx_class[1];
+    EXPECT_EQ(20u, t.frames);
+    EXPECT_EQ(16u, t.waited);
+    size_t bytes = 0;
+    for (const auto& d : sent)
+        bytes += d.size() + 28;
+    EXPECT_EQ(bytes, t.bytes) << "each with its IP and UDP headers";
+    EXPECT_EQ(1u, e.counters().tx_class[0].frames);
 }
 
 }  // namespace

@@ -25,8 +25,8 @@ constexpr size_t kBatch = 32;  // frames per receive batch, as a busy UDP read g
 
 class NullEndpoint : public Endpoint {
 public:
-    explicit NullEndpoint(const EndpointConfig& config)
-        : Endpoint(config, config.name, TxQueue::Mode::Datagram) {}
+    NullEndpoint(const EndpointConfig& config, EventLoop& loop)
+        : Endpoint(config, config.name, loop, TxQueue::Mode::Datagram) {}
     const char* kind() const override { return "null"; }
 
 protected:
@@ -82,7 +82,7 @@ int run(size_t total, const std::string& dir) {
     log_cfg.schema = &kTlogType;
     log_cfg.options.set("directory", OptionValue{.text = dir});
     Router router(*loop.value(), seconds(30));
-    NullEndpoint source(src_cfg), sink(sink_cfg);
+    NullEndpoint source(src_cfg, **loop), sink(sink_cfg, **loop);
     router.attach(source);
     router.attach(sink);
     route_ns(router, source, frames, total / 4);  // warm up

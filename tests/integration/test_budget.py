@@ -1,0 +1,179 @@
+"""A link with a transmit budget (`tx_rate`): a 57600-baud radio on a real pseudo-terminal,
+offered twice what it carries (an ArduPilot-like stream at 248 frames/s, commands, an FTP
+transfer), with the daemon frozen for a second in the middle as a busy companion computer
+freezes it. Judged from the bytes on the pty and the daemon's own counters, never the clock:
+every command goes out, none behind a frame that came after it; telemetry is thinned to the
+newest sample of each message, never reordered, and its last sample goes; bulk arrives whole and
+in order; the line never carries more than the rate allows; every frame is accounted for."""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+from helpers import (HOST, FrameMaker, free_port, split_stream, status_document, uart,
+                     udp_server, udp_socket)
+
+RATE = 5760      # 57600 baud, 8N1
+BURST = 280      # one largest frame: what the line may hold ahead of a command
+FPS = 248        # twice what the radio carries at these sizes
+SECONDS = 4.0
+
+
+def telemetry_maker(fm: FrameMaker):
+    """frame(i): one of 8 telemetry messages, i in its time field (so each is unique)."""
+    m = fm.mod
+    makers = [
+        lambda i: m.MAVLink_attitude_message(i, 0.1, 0.2, 0.3, 0.01, 0.02, 0.03),
+        lambda i: m.MAVLink_global_position_int_message(i, 473977420, 85455940, 500000, 10000,
+                                                         10, 20, 30, 9000),
+        lambda i: m.MAVLink_raw_imu_message(i, 1, 2, 3, 4, 5, 6, 7, 8, 9),
+        lambda i: m.MAVLink_gps_raw_int_message(i, 3, 473977420, 85455940, 500000, 100, 100,
+                                                1000, 9000, 12),
+        lambda i: m.MAVLink_servo_output_raw_message(i, 0, 1500, 1500, 1500, 1500, 1100, 1100,
+                                                     1100, 1100),
+        lambda i: m.MAVLink_rc_channels_message(i, 16, *([1500] * 18), 255),
+        lambda i: m.MAVLink_scaled_pressure_message(i, 1013.2, 0.1, 2500),
+        lambda i: m.MAVLink_local_position_ned_message(i, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3),
+    ]
+    return lambda i: fm.pack(makers[i % len(makers)](i))
+
+
+def ftp_frame(fm: FrameMaker, k: int) -> bytes:
+    payload = bytes([k & 0xFF, k >> 8]) + bytes(249)
+    return fm.pack(fm.mod.MAVLink_file_transfer_protocol_message(0, 0, 0, list(payload[:251])))
+
+
+class PtyReader(threading.Thread):
+    """Reads the radio's side of the pty as fast as it comes, until stopped."""
+
+    def __init__(self, pty):
+        super().__init__(daemon=True)
+        self.pty, self.data, self.stop_flag = pty, bytearray(), threading.Event()
+        self.last_byte = time.monotonic()
+
+    def run(self):
+        while not self.stop_flag.is_set():
+            try:
+                chunk = os.read(self.pty.master, 65536)
+                if chunk:
+                    self.data += chunk
+                    self.last_byte = time.monotonic()
+                    continue
+            except (BlockingIOError, OSError):
+                pass
+            time.sleep(0.001)
+
+
+def test_a_saturated_radio_sends_commands_first_and_thins_telemetry(start_daemon, pty_pair,
+                                                                     tmp_path):
+    pty = pty_pair()
+    ap_port = free_port()
+    sock_path = tmp_path / "status.sock"
+    d = start_daemon([uart("radio", pty.path, baud=57600, tx_rate="baud"),
+                      udp_server("ap", ap_port)], status_socket=str(sock_path))
+    d.wait_log(r"\[uart:radio\] .* open at 57600 baud")
+    reader = PtyReader(pty)
+    reader.start()
+    fm = FrameMaker(1, 1)
+    tele = telemetry_maker(fm)
+
+    # The input, in the order the test sends it: (kind, key, frame).
+    sent = []
+    n = int(FPS * SECONDS)
+    for i in range(n):
+        sent.append(("telemetry", i, tele(i)))
+        if i % 25 == 12:   # a command about every 100 ms, each its own
+            sent.append(("control", i, fm.command_long(0, 0, 400 + i // 25)))
+        if i % 62 == 30:   # a heartbeat about every 250 ms
+            sent.append(("control", i, fm.pack(fm.mod.MAVLink_heartbeat_message(2, 3, 0, i, 4, 3))))
+        if i % 25 == 3:    # FTP at 10 frames/s: bulk
+            sent.append(("bulk", i // 25, ftp_frame(fm, i // 25)))
+    index = {f: k for k, (_, _, f) in enumerate(sent)}
+    assert len(index) == len(sent), "every frame sent is unique"
+
+    src = udp_socket()
+    t_start = time.monotonic()
+    stopped_at = None   # halfway the daemon is frozen for 1 s: the stream piles up meanwhile
+    try:
+        for _, i, frame in sent:
+            due = t_start + i / FPS
+            while time.monotonic() < due:
+                time.sleep(0.002)
+            if stopped_at is None and i >= n // 2:
+                d.proc.send_signal(signal.SIGSTOP)
+                stopped_at = time.monotonic()
+            elif stopped_at and time.monotonic() - stopped_at > 1.0:
+                d.proc.send_signal(signal.SIGCONT)
+                stopped_at = 0
+            src.sendto(frame, (HOST, ap_port))
+        d.proc.send_signal(signal.SIGCONT)
+        # What the budget still holds goes out after the stream: wait until the line is quiet.
+        while time.monotonic() - reader.last_byte < 1.5:
+            time.sleep(0.1)
+        t_end = time.monotonic()
+    finally:
+        reader.stop_flag.set()
+        reader.join(2)
+        src.close()
+
+    out = split_stream(bytes(reader.data))
+    assert b"".join(out) == bytes(reader.data), "only whole frames on the line"
+    pos = [index[f] for f in out]
+    kinds = [sent[p][0] for p in pos]
+    assert len(set(pos)) == len(pos), "no frame twice"
+
+    # Every command and heartbeat went, in order, and none after a frame sent after it.
+    control_in = [k for k, s in enumerate(sent) if s[0] == "control"]
+    control_out = [p for p in pos if sent[p][0] == "control"]
+    assert control_out == control_in
+    overtaken = 0
+    for at, p in enumerate(pos):
+        if sent[p][0] != "control":
+            continue
+        ahead = pos[:at]
+        assert max(ahead, default=-1) < p, f"a frame sent after command {p} went before it"
+        overtaken += sum(1 for q in pos[at + 1:] if q < p)
+    assert overtaken > 0, "the freeze's backlog: commands went ahead of older telemetry"
+
+    # Telemetry: per message newest first-only, each message's last sample went.
+    tele_out = [p for p in pos if sent[p][0] == "telemetry"]
+    by_msg = {}
+    for p in tele_out:
+        by_msg.setdefault(sent[p][1] % 8, []).append(sent[p][1])
+    assert len(by_msg) == 8, "every message kept a share"
+    for m, seq in by_msg.items():
+        assert seq == sorted(seq), f"message {m} went out of order"
+        assert seq[-1] == max(i for i in range(n) if i % 8 == m), f"message {m}'s last sample"
+
+    # Bulk: whole and in order.
+    bulk_out = [sent[p][1] for p in pos if sent[p][0] == "bulk"]
+    assert bulk_out == [s[1] for s in sent if s[0] == "bulk"]
+
+    # The line: what is not control never beyond the rate and one frame over the window.
+    window = t_end - t_start
+    paced = sum(len(f) for f, k in zip(out, kinds) if k != "control")
+    assert paced <= RATE * window + BURST, (paced, RATE * window)
+
+    # The daemon's own accounting: each class's frames as the pty got them, and every
+    # telemetry frame sent either went, or was thinned.
+    doc = status_document(sock_path)
+    radio = next(e for e in doc["endpoints"] if e["name"] == "radio")
+    b = radio["tx_budget"]
+    assert b["rate"] == RATE
+    assert b["control"]["frames"] == len(control_in) and b["control"]["waited"] == 0
+    assert b["telemetry"]["frames"] == len(tele_out)
+    assert b["telemetry"]["frames"] + b["telemetry"]["thinned"] + b["telemetry"]["dropped"] == n
+    assert b["telemetry"]["dropped"] == 0 and b["telemetry"]["thinned"] > 0
+    assert b["bulk"]["frames"] == len(bulk_out) and b["bulk"]["dropped"] == 0
+    assert radio["tx_frames"] == len(out) and radio["tx_dropped"] == 0
+    offered = sum(len(s[2]) for s in sent) / SECONDS
+    print(f"\n{len(sent)} frames offered in {SECONDS:.0f} s ({offered:.0f} B/s) "
+          f"to a {RATE} B/s radio, frozen 1 s; on the line in {window:.1f} s: "
+          f"{sum(map(len, out)) / window:.0f} B/s; control {b['control']['frames']} "
+          f"(every one, none waited, {overtaken} older frames overtaken), telemetry "
+          f"{b['telemetry']['frames']} of {n} ({b['telemetry']['thinned']} thinned, "
+          f"{b['telemetry']['waited']} waited), bulk {b['bulk']['frames']} of "
+          f"{len(bulk_out)} in order")
+    assert d.stop() == 0
