@@ -43,7 +43,7 @@ sys.path.insert(0, str(REPO / "tests" / "tools"))
 from bonding_helpers import EmuGroup, Gateway, Stall, gcs_hello, udp_sock  # noqa: E402
 from helpers import HOST, FrameMaker, free_port, split_stream, udp_client, udp_server  # noqa: E402
 from test_faults import udp_drops  # noqa: E402
-from test_metrics import status_document  # noqa: E402
+from helpers import status_document  # noqa: E402
 from test_stalls import STALLS, drained, held_back, repeats_stream  # noqa: E402
 import tlog  # noqa: E402
 from synth import ardupilot_stream  # noqa: E402
