@@ -44,16 +44,21 @@ COMMAND_EVERY = 0.25
 ACK_WAIT = 5.0
 
 
-def frames_of(data: bytes):
-    """Parsed MAVLink messages of a datagram (pymavlink)."""
-    parser = mav2.MAVLink(None)
-    parser.robust_parsing = True
-    out = []
-    for b in data:
-        m = parser.parse_char(bytes([b]))
-        if m is not None:
-            out.append(m)
-    return out
+def receive_messages(sock, stop: threading.Event, on_message) -> None:
+    """Until `stop`: each MAVLink message received on `sock`, with its arrival time."""
+    sock.settimeout(0.05)
+    while not stop.is_set():
+        try:
+            data = sock.recv(65536)
+        except OSError:
+            continue
+        now = time.monotonic()
+        parser = mav2.MAVLink(None)
+        parser.robust_parsing = True
+        for b in data:
+            m = parser.parse_char(bytes([b]))
+            if m is not None:
+                on_message(m, now)
 
 
 class Vehicle:
@@ -69,18 +74,14 @@ class Vehicle:
         self.stop = threading.Event()
 
     def run_acks(self):
-        self.sock.settimeout(0.05)
-        while not self.stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                continue
-            for m in frames_of(data):
-                if m.get_type() == "COMMAND_LONG":
-                    ack = mav2.MAVLink_command_ack_message(
-                        m.command, 0, 0, int(m.param1), m.get_srcSystem(), m.get_srcComponent())
-                    self.sock.sendto(bytes(ack.pack(self.mav)), self.addr)
-                    self.acked += 1
+        receive_messages(self.sock, self.stop, self.on_message)
+
+    def on_message(self, m, _now):
+        if m.get_type() == "COMMAND_LONG":
+            ack = mav2.MAVLink_command_ack_message(
+                m.command, 0, 0, int(m.param1), m.get_srcSystem(), m.get_srcComponent())
+            self.sock.sendto(bytes(ack.pack(self.mav)), self.addr)
+            self.acked += 1
 
     def run_stream(self, start: float):
         for t_us, frame in self.stream:
@@ -108,17 +109,12 @@ class Gcs:
         self.stop = threading.Event()
 
     def run_recv(self):
-        self.sock.settimeout(0.05)
-        while not self.stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                continue
-            now = time.monotonic()
-            for m in frames_of(data):
-                self.got[m.get_msgId()] += 1
-                if m.get_type() == "COMMAND_ACK" and m.result_param2 in self.sent_at:
-                    self.rtt.setdefault(m.result_param2, now - self.sent_at[m.result_param2])
+        receive_messages(self.sock, self.stop, self.on_message)
+
+    def on_message(self, m, now):
+        self.got[m.get_msgId()] += 1
+        if m.get_type() == "COMMAND_ACK" and m.result_param2 in self.sent_at:
+            self.rtt.setdefault(m.result_param2, now - self.sent_at[m.result_param2])
 
     def send(self, msg):
         self.sock.sendto(bytes(msg.pack(self.mav)), self.addr)
