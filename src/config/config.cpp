@@ -1330,6 +1330,11 @@ bool same_unmarked(const std::vector<T>& a, const std::vector<T>& b) {
 bool same_settings(const EndpointConfig& a, const EndpointConfig& b) {
     return unmarked(a) == unmarked(b);
 }
+bool same_but_budget(const EndpointConfig& a, const EndpointConfig& b) {
+    EndpointConfig x = unmarked(a), y = unmarked(b);
+    x.tx_budget = y.tx_budget = {};
+    return x == y;
+}
 bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfig>& b) {
     return same_unmarked(a, b);
 }

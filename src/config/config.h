@@ -162,6 +162,8 @@ struct Config {
 /// Whether two declarations mean the same, wherever in their files they were written: what a
 /// reload compares to decide what must restart.
 bool same_settings(const EndpointConfig& a, const EndpointConfig& b);
+/// The same but for the transmit budget (which a running endpoint takes on in place).
+bool same_but_budget(const EndpointConfig& a, const EndpointConfig& b);
 bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfig>& b);
 bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterConfig>& b);
 

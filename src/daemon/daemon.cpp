@@ -279,8 +279,16 @@ std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config
     std::map<std::string, Endpoint::Ptr> kept;
     for (auto& e : endpoints_) {
         const EndpointConfig* now = find_endpoint(next, e->config().name);
-        if (now && same_settings(*now, e->config()) &&
-            config_->unknown_messages == next.unknown_messages) {
+        const bool same_policy = config_->unknown_messages == next.unknown_messages;
+        if (now && same_policy && same_but_budget(*now, e->config())) {
+            if (!(now->tx_budget == e->config().tx_budget)) {
+                // A budget changes in place: a restart would reopen a UART.
+                e->retune(now->tx_budget);
+                std::string rate = e->budget()
+                                       ? std::to_string(e->budget()->bytes_per_s()) + " B/s"
+                                       : "none";
+                log_notice("reload: [%s] transmit budget now %s", e->name().c_str(), rate.c_str());
+            }
             kept[e->config().name] = std::move(e);
             continue;
         }

@@ -33,15 +33,28 @@ Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& lo
         verifier_ = parent->verifier_;
     else if (config.signing.enabled)
         verifier_ = std::make_shared<SignatureVerifier>(config.signing.key);
+    budget_ = make_budget();
+}
+
+std::unique_ptr<TxBudget> Endpoint::make_budget() {
     const TxBudgetConfig& b = config_.tx_budget;
-    if (b.enabled()) {
-        // A UART's own rate: 8N1 puts 10 bits on the line for each byte. A rate in baud is
-        // a serial line's (a radio behind the datagrams): no headers go over it.
-        uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
-        bool headers = mode == TxQueue::Mode::Datagram && !b.serial;
-        budget_ = std::make_unique<TxBudget>(rate, headers ? kDatagramOverhead : 0, b.classes,
-                                             config_.tx_queue_bytes, stats_.tx_class);
-    }
+    if (!b.enabled())
+        return nullptr;
+    // A UART's own rate: 8N1 puts 10 bits on the line for each byte. A rate in baud is a
+    // serial line's (a radio behind the datagrams): no headers go over it.
+    uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
+    bool headers = tx_.mode() == TxQueue::Mode::Datagram && !b.serial;
+    return std::make_unique<TxBudget>(rate, headers ? kDatagramOverhead : 0, b.classes,
+                                      config_.tx_queue_bytes, stats_.tx_class);
+}
+
+void Endpoint::retune(const TxBudgetConfig& budget) {
+    if (budget_)
+        budget_->drain(loop_.now(), [this](std::span<const uint8_t> b) { lend_now(b); });
+    budget_timer_.cancel();
+    budget_due_ = TimePoint::max();
+    config_.tx_budget = budget;
+    budget_ = make_budget();
 }
 
 Endpoint::~Endpoint() = default;

@@ -75,6 +75,10 @@ public:
     /// counters account for every frame.
     virtual void finish(TimePoint deadline);
 
+    /// Takes on a new transmit budget (a reload), with no restart: what the old one held goes
+    /// now, its counters go on. A server passes it to its peers or connections.
+    virtual void retune(const TxBudgetConfig& budget);
+
     /// The loop it runs on (its children run on it too).
     EventLoop& loop() const { return loop_; }
     /// Its transmit budget (`tx_rate`), or null.
@@ -117,8 +121,10 @@ private:
     void release_budgeted();
     /// Writes a frame whose bytes live only during the call (the budget's copies).
     void lend_now(std::span<const uint8_t> frame);
+    /// The budget config_ asks for (null for none).
+    std::unique_ptr<TxBudget> make_budget();
 
-    const EndpointConfig config_;  // before the filters, which point into it
+    EndpointConfig config_;  // before the filters, which point into it; only retune() changes it
     TxQueue tx_;
     std::shared_ptr<void> alive_ = std::make_shared<int>(0);  // expires with the endpoint
     MessageFilter filter_in_;

@@ -88,6 +88,12 @@ LinkCounters TcpServer::total_counters() const {
     return total;
 }
 
+void TcpServer::retune(const TxBudgetConfig& budget) {
+    Endpoint::retune(budget);
+    for (auto& c : clients_)
+        c->retune(budget);
+}
+
 void TcpServer::finish(TimePoint deadline) {
     for (auto& c : clients_)
         c->finish(deadline);

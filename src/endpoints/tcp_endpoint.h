@@ -39,6 +39,7 @@ public:
     const char* kind() const override { return "tcp-server"; }
     LinkCounters total_counters() const override;
     void finish(TimePoint deadline) override;
+    void retune(const TxBudgetConfig& budget) override;
 
 private:
     friend class TcpConnection;

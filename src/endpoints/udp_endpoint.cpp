@@ -175,6 +175,12 @@ LinkCounters UdpServer::total_counters() const {
     return total;
 }
 
+void UdpServer::retune(const TxBudgetConfig& budget) {
+    Endpoint::retune(budget);
+    for (auto& peer : peers_)
+        peer->retune(budget);
+}
+
 void UdpServer::finish(TimePoint deadline) {
     for (auto& peer : peers_)
         peer->finish(deadline);

@@ -87,6 +87,7 @@ public:
     const char* kind() const override { return "udp-server"; }
     LinkCounters total_counters() const override;
     void finish(TimePoint deadline) override;
+    void retune(const TxBudgetConfig& budget) override;
     int fd() const { return fd_.get(); }
     /// Watches for EPOLLOUT while some peer has a backlog.
     void update_write_interest();

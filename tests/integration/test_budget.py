@@ -8,6 +8,7 @@ in order; the line never carries more than the rate allows; every frame is accou
 from __future__ import annotations
 
 import os
+import re
 import signal
 import threading
 import time
@@ -176,4 +177,70 @@ def test_a_saturated_radio_sends_commands_first_and_thins_telemetry(start_daemon
           f"{b['telemetry']['frames']} of {n} ({b['telemetry']['thinned']} thinned, "
           f"{b['telemetry']['waited']} waited), bulk {b['bulk']['frames']} of "
           f"{len(bulk_out)} in order")
+    assert d.stop() == 0
+
+
+def test_a_budget_changes_on_reload_with_no_restart(start_daemon, pty_pair, tmp_path):
+    """A radio's budget raised from 2 kB/s (under the stream) to 20 kB/s (over it) by a reload
+    mid-stream: the UART is not reopened, nothing is lost but what the old budget thinned,
+    and once the new budget holds every frame goes through."""
+    pty = pty_pair()
+    ap_port = free_port()
+    sock_path = tmp_path / "status.sock"
+    radio = uart("radio", pty.path, baud=57600, tx_rate="2kB/s")
+    d = start_daemon([radio, udp_server("ap", ap_port)], status_socket=str(sock_path))
+    d.wait_log(r"\[uart:radio\] .* open at 57600 baud")
+    reader = PtyReader(pty)
+    reader.start()
+    fm = FrameMaker(1, 1)
+    tele = telemetry_maker(fm)
+    sent, n, fps = [], 600, 100   # 6 s at about 4 kB/s; the reload at 2 s
+    for i in range(n):
+        sent.append(("telemetry", i, tele(i)))
+        if i % 10 == 5:
+            sent.append(("control", i, fm.command_long(0, 0, 400 + i // 10)))
+    index = {f: k for k, (_, _, f) in enumerate(sent)}
+    src = udp_socket()
+    t_start, reloaded = time.monotonic(), False
+    try:
+        for _, i, frame in sent:
+            while time.monotonic() < t_start + i / fps:
+                time.sleep(0.002)
+            if not reloaded and i >= 2 * fps:
+                d.config_path.write_text(d.config_path.read_text().replace(
+                    "tx_rate: 2kB/s", "tx_rate: 20kB/s"))
+                d.proc.send_signal(signal.SIGHUP)
+                reloaded = True
+            src.sendto(frame, (HOST, ap_port))
+        d.wait_log(r"reload: \[radio\] transmit budget now 20000 B/s")
+        while time.monotonic() - reader.last_byte < 1.0:
+            time.sleep(0.1)
+    finally:
+        reader.stop_flag.set()
+        reader.join(2)
+        src.close()
+
+    log = d.log()
+    assert len(re.findall(r"\[uart:radio\] .* open at", log)) == 1, "the UART was not reopened"
+    assert re.search(r"reloaded: 2 endpoints kept, 0 stopped, 0 started", log)
+    out = split_stream(bytes(reader.data))
+    pos = [index[f] for f in out]
+    assert len(set(pos)) == len(pos)
+    control = [p for p in pos if sent[p][0] == "control"]
+    assert control == [k for k, s in enumerate(sent) if s[0] == "control"]
+    for m in range(8):
+        seq = [sent[p][1] for p in pos if sent[p][0] == "telemetry" and sent[p][1] % 8 == m]
+        assert seq == sorted(seq)
+    # The last second went whole: the new budget carries the stream.
+    tail = [k for k, s in enumerate(sent) if s[0] == "telemetry" and s[1] >= n - fps]
+    assert set(tail) <= set(pos)
+    doc = status_document(sock_path)
+    r = next(e for e in doc["endpoints"] if e["name"] == "radio")
+    t = r["tx_budget"]["telemetry"]
+    assert r["tx_budget"]["rate"] == 20000
+    assert t["frames"] == len(pos) - len(control), "the counters went on across the reload"
+    assert t["frames"] + t["thinned"] == n and t["dropped"] == 0 and t["thinned"] > 0
+    assert r["tx_dropped"] == 0
+    print(f"\nreload 2 kB/s -> 20 kB/s mid-stream: every one of {len(control)} commands, "
+          f"telemetry {t['frames']} of {n} ({t['thinned']} thinned), the UART opened once")
     assert d.stop() == 0

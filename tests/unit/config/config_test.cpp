@@ -723,6 +723,13 @@ TEST(SameSettings, IgnoresWhereButNotWhat) {
     EXPECT_FALSE(same_settings(a->bonds, changed->bonds));
     EXPECT_FALSE(same_settings(a->filters, changed->filters));
     EXPECT_FALSE(same_settings(a->filters, {}));
+    // A budget alone is what a running endpoint takes on in place.
+    EndpointConfig budgeted = a->endpoints[0];
+    budgeted.tx_budget.bytes_per_s = 5000;
+    EXPECT_FALSE(same_settings(a->endpoints[0], budgeted));
+    EXPECT_TRUE(same_but_budget(a->endpoints[0], budgeted));
+    EXPECT_TRUE(same_but_budget(moved->endpoints[0], budgeted));
+    EXPECT_FALSE(same_but_budget(changed->endpoints[0], budgeted));
 }
 
 // --- metrics: ------------------------------------------------------------------------------
