@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cstring>
 
+#include "mavlink/message_table.h"
+
 namespace mavbond {
 namespace {
 
@@ -59,9 +61,22 @@ void TxBudget::charge(TxClass c, size_t len, bool waited) {
         bulk_turn_ += weighted / kBulkShare;
 }
 
+/// A telemetry sample's message, source and instance (its low 24 bits: an ICAO address fits).
+uint64_t TxBudget::slot_key(const Frame& frame) {
+    uint32_t instance = 0;
+    if (frame.info && frame.info->instance_size != 0) {
+        // Little-endian on the wire; a v2 payload may end early (its zeros trimmed).
+        for (size_t i = frame.info->instance_size; i-- > 0;) {
+            size_t at = static_cast<size_t>(frame.info->instance_ofs) + i;
+            instance = instance << 8 | (at < frame.payload.size() ? frame.payload[at] : 0);
+        }
+    }
+    return static_cast<uint64_t>(frame.msgid) << 40 | static_cast<uint64_t>(frame.sysid) << 32 |
+           static_cast<uint64_t>(frame.compid) << 24 | (instance & 0xFFFFFF);
+}
+
 TxBudget::Slot* TxBudget::slot_for(const Frame& frame) {
-    const uint64_t key = (static_cast<uint64_t>(frame.msgid) << 16) |
-                         (static_cast<uint64_t>(frame.sysid) << 8) | frame.compid;
+    const uint64_t key = slot_key(frame);
     for (Slot& s : slots_) {
         if (s.key == key)
             return &s;

@@ -7,8 +7,9 @@
 // one frame time of the budget. Per class:
 //   control    goes at once, always; the bucket goes into debt and later frames wait it off.
 //   telemetry  goes when the bucket has its cost; while it waits, the newest sample of each
-//              message from each source replaces the one before (`thinned`): nothing is held
-//              past its usefulness. A capped message goes at most at its cap.
+//              message from each source (and instance: each battery, each aircraft) replaces
+//              the one before (`thinned`): nothing is held past its usefulness. A capped
+//              message goes at most at its cap.
 //   bulk       goes in order behind telemetry, with a quarter of the budget whenever both
 //              wait (a transfer slows, it does not stall); the oldest goes when the queue is
 //              full (`dropped`).
@@ -79,7 +80,7 @@ public:
 private:
     /// One message from one source: its cap, when it last went, and its newest held sample.
     struct Slot {
-        uint64_t key = 0;           // msgid << 16 | sysid << 8 | compid
+        uint64_t key = 0;           // slot_key()
         Duration cap{0};            // least time between two of it (0: none)
         TimePoint last_sent{};
         bool held = false;
@@ -95,7 +96,9 @@ private:
 
     void refill(TimePoint now);
     uint64_t cost(size_t len) const { return len + overhead_; }
-    /// The frame's message and source's slot, made if new; null when every slot holds one.
+    static uint64_t slot_key(const Frame& frame);
+    /// The slot of the frame's message, source and instance, made if new; null when every
+    /// slot holds a frame.
     Slot* slot_for(const Frame& frame);
     bool telemetry_ready(const Slot& s, TimePoint now) const {
         return s.cap.count() == 0 || now - s.last_sent >= s.cap;

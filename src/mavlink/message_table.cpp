@@ -84,6 +84,49 @@ constexpr Timestamp find_timestamp(const mavlink_message_info_t& info) {
     return {};
 }
 
+struct Instance {
+    int16_t ofs = -1;
+    uint8_t size = 0;
+};
+
+// The field that tells a message's instances apart, when one source sends several (two
+// batteries, every aircraft ADS-B hears, each distance sensor): a scalar integer of at most 4
+// bytes by one of these names. A field so named that is not an instance only makes more
+// instances than there are, never fewer.
+constexpr Instance find_instance(const mavlink_message_info_t& info) {
+    constexpr const char* kInstanceNames[] = {"id",         "instance",   "port",
+                                              "index",      "sensor_id",  "compass_id",
+                                              "gps_id",     "target_num", "camera_id",
+                                              "ICAO_address"};
+    for (unsigned f = 0; f < info.num_fields; ++f) {
+        const mavlink_field_info_t& field = info.fields[f];
+        if (field.array_length != 0)
+            continue;
+        uint8_t size = 0;
+        switch (field.type) {
+        case MAVLINK_TYPE_UINT8_T:
+        case MAVLINK_TYPE_INT8_T:
+            size = 1;
+            break;
+        case MAVLINK_TYPE_UINT16_T:
+        case MAVLINK_TYPE_INT16_T:
+            size = 2;
+            break;
+        case MAVLINK_TYPE_UINT32_T:
+        case MAVLINK_TYPE_INT32_T:
+            size = 4;
+            break;
+        default:
+            continue;
+        }
+        for (const char* name : kInstanceNames) {
+            if (str_equal(field.name, name))
+                return {static_cast<int16_t>(field.wire_offset), size};
+        }
+    }
+    return {};
+}
+
 struct Tables {
     std::array<MessageInfo, kMessageCount> messages{};
     std::array<int16_t, kDirectIds> direct{};   // index into messages, -1 when unknown
@@ -106,6 +149,7 @@ constexpr Tables build_tables() {
         if (info == nullptr)
             throw "MAVLINK_MESSAGE_INFO lacks a message of MAVLINK_MESSAGE_CRCS";
         const Timestamp ts = find_timestamp(*info);
+        const Instance instance = find_instance(*info);
         t.messages[i] = MessageInfo{
             .msgid = e.msgid,
             .crc_extra = e.crc_extra,
@@ -118,6 +162,8 @@ constexpr Tables build_tables() {
             .timestamp_ofs = ts.ofs,
             .timestamp_size = ts.size,
             .timestamp_us = ts.us,
+            .instance_ofs = instance.ofs,
+            .instance_size = instance.size,
             .name = info->name,
         };
         if (e.msgid < kDirectIds)

@@ -1,5 +1,5 @@
 // What c_library_v2 knows about each message id: CRC_EXTRA, lengths, target field offsets,
-// names and a timestamp field. Built from the generated library's tables at compile time.
+// names, a timestamp field and an instance field. Built from the generated library's tables at compile time.
 #pragma once
 
 #include <cstdint>
@@ -20,6 +20,9 @@ struct MessageInfo {
     int16_t timestamp_ofs;          // wire offset of time_boot_ms / time_usec, -1 if none
     uint8_t timestamp_size;         // its size in bytes (4 or 8); 0 if none
     bool timestamp_us;              // time_usec (microseconds), else time_boot_ms (milliseconds)
+    int16_t instance_ofs;           // wire offset of the field telling instances apart (a
+                                    // battery's id, an aircraft's ICAO_address), -1 if none
+    uint8_t instance_size;          // its size in bytes (1 to 4); 0 if none
     const char* name;
 };
 

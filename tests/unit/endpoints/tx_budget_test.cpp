@@ -30,20 +30,28 @@ struct Made {
     std::vector<uint8_t> bytes;
     Frame frame;
 };
-Made make(uint32_t msgid, uint16_t tag, size_t payload = 28, uint8_t sysid = 1) {
+Made make(uint32_t msgid, uint16_t tag, size_t payload = 28, uint8_t sysid = 1,
+          uint8_t instance = 0) {
     Made m;
-    EXPECT_NE(nullptr, find_message(msgid));
+    const MessageInfo* info = find_message(msgid);
+    EXPECT_NE(nullptr, info);
     std::array<uint8_t, kMaxFrameLen> buf{};
-    payload = std::min<size_t>(payload, find_message(msgid)->max_len);
+    payload = std::min<size_t>(payload, info->max_len);
     std::vector<uint8_t> body(payload, 0x55);
     body[0] = static_cast<uint8_t>(tag);
     body[1] = static_cast<uint8_t>(tag >> 8);
+    if (info->instance_size != 0) {  // the instance's low byte, the rest zero
+        for (size_t i = 0; i < info->instance_size; i++)
+            body.at(static_cast<size_t>(info->instance_ofs) + i) = i == 0 ? instance : 0;
+    }
     size_t n = write_frame_v2(buf, FrameSource{sysid, 1, static_cast<uint8_t>(tag)}, msgid, body);
     m.bytes.assign(buf.begin(), buf.begin() + static_cast<ptrdiff_t>(n));
     m.frame.bytes = m.bytes;
+    m.frame.payload = std::span<const uint8_t>(m.bytes).subspan(kHeaderLenV2, m.bytes[1]);
     m.frame.msgid = msgid;
     m.frame.sysid = sysid;
     m.frame.compid = 1;
+    m.frame.info = info;
     return m;
 }
 
@@ -54,6 +62,7 @@ struct Out {
     uint8_t sysid;
     uint16_t tag;
     size_t len;
+    std::vector<uint8_t> bytes;
 };
 
 /// Drives a budget the way an endpoint does: offer() each frame at its time, release() at
@@ -87,7 +96,8 @@ private:
     }
     void record(TimePoint at, std::span<const uint8_t> b) {
         uint32_t msgid = b[7] | b[8] << 8 | b[9] << 16;
-        out.push_back({at, msgid, b[5], static_cast<uint16_t>(b[10] | b[11] << 8), b.size()});
+        out.push_back({at, msgid, b[5], static_cast<uint16_t>(b[10] | b[11] << 8), b.size(),
+                       {b.begin(), b.end()}});
     }
     TimePoint due_ = TimePoint::max();
 };
@@ -235,6 +245,29 @@ TEST(TxBudgetTest, TheBulkQueueDropsItsOldestWhenFull) {
     for (size_t i = 1; i < line.out.size(); i++)
         EXPECT_GT(line.out[i].tag, line.out[i - 1].tag);
     EXPECT_EQ(19, line.out.back().tag);
+}
+
+TEST(TxBudgetTest, InstancesOfAMessageAreThinnedApart) {
+    // Two batteries and two aircraft from one source, through a link that carries a tenth:
+    // each battery and each aircraft keeps its own newest sample.
+    Line line(300, classes());
+    for (int i = 0; i < 100; i++) {
+        TimePoint at = t0 + ms(10 * i);
+        line.offer(make(id("BATTERY_STATUS"), static_cast<uint16_t>(i), 36, 1, 0), at);
+        line.offer(make(id("BATTERY_STATUS"), static_cast<uint16_t>(i), 36, 1, 1), at);
+        line.offer(make(id("ADSB_VEHICLE"), static_cast<uint16_t>(i), 38, 1, 0x21), at);
+        line.offer(make(id("ADSB_VEHICLE"), static_cast<uint16_t>(i), 38, 1, 0x42), at);
+    }
+    line.run_until(t0 + seconds(20));
+    std::map<std::pair<uint32_t, uint8_t>, int> last;
+    for (const Out& o : line.out) {
+        const MessageInfo* info = find_message(o.msgid);
+        uint8_t instance = o.bytes.at(kHeaderLenV2 + static_cast<size_t>(info->instance_ofs));
+        last[{o.msgid, instance}] = o.bytes[4];  // the sequence byte: ADS-B's tag is its address
+    }
+    EXPECT_EQ(4u, last.size()) << "both batteries and both aircraft went";
+    for (const auto& [which, tag] : last)
+        EXPECT_EQ(99, tag) << which.first << "/" << int(which.second) << ": its newest sample";
 }
 
 TEST(TxBudgetTest, ALinkThatStopsHandsOverEverythingHeld) {

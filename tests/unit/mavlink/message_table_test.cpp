@@ -73,6 +73,21 @@ TEST(MessageTable, Targets) {
     EXPECT_FALSE(gpo->has_target_component);
 }
 
+TEST(MessageTable, Instances) {
+    // BATTERY_STATUS: int32 x2, int16, uint16[10], int16 before it: id at 32.
+    const MessageInfo* battery = find_message(147);
+    ASSERT_NE(nullptr, battery);
+    EXPECT_EQ(32, battery->instance_ofs);
+    EXPECT_EQ(1, battery->instance_size);
+    const MessageInfo* adsb = find_message(246);  // ADSB_VEHICLE: ICAO_address first
+    ASSERT_NE(nullptr, adsb);
+    EXPECT_EQ(0, adsb->instance_ofs);
+    EXPECT_EQ(4, adsb->instance_size);
+    const MessageInfo* attitude = find_message(30);
+    EXPECT_EQ(-1, attitude->instance_ofs);
+    EXPECT_EQ(0, attitude->instance_size);
+}
+
 TEST(MessageTable, HighIdsUseTheSearchPath) {
     const MessageInfo* odid = find_message(12900);   // OPEN_DRONE_ID_BASIC_ID
     ASSERT_NE(odid, nullptr);
