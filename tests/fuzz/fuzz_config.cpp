@@ -8,6 +8,7 @@
 // Loading the same text twice gives the same answer.
 #include <arpa/inet.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdlib>
 #include <set>
@@ -170,6 +171,44 @@ private:
                    "endpoint '%s': tx_queue %zu", name, ep.tx_queue_bytes);
         check_ids(ep.filter_in, ep.name);
         check_ids(ep.filter_out, ep.name);
+        check_budget(ep);
+    }
+
+    /// A budget within its bounds, a UART's own rate only on a UART, and classes that are
+    /// sorted, apart, and capped only where telemetry is; no classes without a budget.
+    static void check_budget(const EndpointConfig& ep) {
+        const char* name = ep.name.c_str();
+        const TxBudgetConfig& b = ep.tx_budget;
+        if (!b.enabled()) {
+            FUZZ_CHECK(b.classes == TxClassesConfig{}, "endpoint '%s': classes, no budget", name);
+            return;
+        }
+        FUZZ_CHECK(ep.schema->receives, "endpoint '%s': a budget on a recorder", name);
+        if (b.uart_baud)
+            FUZZ_CHECK(std::string_view(ep.schema->type) == "uart" && b.serial,
+                       "endpoint '%s': tx_rate baud on a %s", name, ep.schema->type);
+        else
+            FUZZ_CHECK(b.bytes_per_s >= 100 && b.bytes_per_s <= 1000000000ull,
+                       "endpoint '%s': tx_rate %llu B/s", name,
+                       static_cast<unsigned long long>(b.bytes_per_s));
+        const TxClassesConfig& c = b.classes;
+        for (const auto* list : {&c.control, &c.bulk}) {
+            for (size_t i = 0; i < list->size(); i++) {
+                FUZZ_CHECK((*list)[i] <= 0xFFFFFF && (i == 0 || (*list)[i - 1] < (*list)[i]),
+                           "endpoint '%s': a class list not sorted or out of range", name);
+            }
+        }
+        for (uint32_t id : c.control)
+            FUZZ_CHECK(!std::binary_search(c.bulk.begin(), c.bulk.end(), id),
+                       "endpoint '%s': message %u both control and bulk", name, id);
+        for (size_t i = 0; i < c.caps.size(); i++) {
+            const auto& [id, interval] = c.caps[i];
+            FUZZ_CHECK(interval.count() > 0 && (i == 0 || c.caps[i - 1].first <= id),
+                       "endpoint '%s': cap of %u", name, id);
+            FUZZ_CHECK(!std::binary_search(c.control.begin(), c.control.end(), id) &&
+                           !std::binary_search(c.bulk.begin(), c.bulk.end(), id),
+                       "endpoint '%s': a cap on %u, not telemetry", name, id);
+        }
     }
 
     void check_filter(const FilterConfig& filter, const std::set<std::string>& endpoints,
