@@ -7,8 +7,9 @@ same emulated link conditions, with tables and plots.
 Each scenario (scenarios.py) runs in its own worker process (lab.py: real mavbond gateways and
 a link emulator, the three modes side by side, every ground gateway frozen on a schedule
 unless --no-stall); at most --jobs at a time (2 on 2 cores: each worker's processes need about
-half a core). The dedup window experiment (window_cost.py) and the stale_after sweep
-(stale_after.py) are two more jobs. Then the figures (analyze.py) go into OUT/results.md and
+half a core). The dedup window experiment (window_cost.py), the stale_after sweep
+(stale_after.py) and a slow radio alone with and without a transmit budget (priorities.py) are
+three more jobs. Then the figures (analyze.py) go into OUT/results.md and
 the plots (plots.py) into OUT/*.png. --publish (publish.py) copies the PNGs and results.md, with
 the findings added after its summary, to tests/compare/results/, and rewrites the README's
 "## Results" section, the headline, from this run (or writes it to --readme-out).
@@ -51,7 +52,8 @@ def ms(x) -> str:
 
 # --- workers ------------------------------------------------------------------------------
 
-JOBS = {"window": 45, "stale": 95}   # the jobs beside the scenarios, and about how long each takes
+# The jobs beside the scenarios, and about how long each takes.
+JOBS = {"window": 45, "stale": 95, "priorities": 140}
 
 
 def worker(args) -> int:
@@ -66,6 +68,9 @@ def worker(args) -> int:
     elif args.worker == "stale":
         import stale_after  # noqa: PLC0415
         raw = stale_after.run(args.mavbond, args.plugin_dir, args.stream, workdir)
+    elif args.worker == "priorities":
+        import priorities  # noqa: PLC0415
+        raw = priorities.run_pair(args.mavbond, round(60 * args.scale, 1), workdir)
     else:
         sc = S.get(args.worker)
         sc = dataclasses.replace(sc, seconds=round(sc.seconds * args.scale, 1),
@@ -240,6 +245,7 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
             if (out / "raw" / f"{n}.json").exists()}
     window = raws.pop("window", None)
     stale = raws.pop("stale", None)
+    prio = raws.pop("priorities", None)
     mets = {n: analyze.scenario_metrics(r) for n, r in raws.items()}
     stalled = any(r["stall"] for r in raws.values())
     lines = ["# mavbond: dedup vs link switching vs one link", ""]
@@ -290,13 +296,18 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
     if window:
         lines += ["## The dedup window: what the paper's 5 s and 32-bit hash cost", ""]
         lines += window_section(window) + [""]
+    if prio:
+        import priorities  # noqa: PLC0415
+        lines += ["## A slow radio alone: commands first (tx_rate)", ""]
+        lines += priorities.report_lines(prio) + ["", "![priorities](priorities.png)", ""]
+        plots.priorities_plot(prio, out / "priorities.png")
     (out / "results.md").write_text("\n".join(lines))
     (out / "metrics.json").write_text(json.dumps(
-        {"runtime_s": runtime, "window": window, "stale": stale,
+        {"runtime_s": runtime, "window": window, "stale": stale, "priorities": prio,
          "scenarios": {n: {mo: {k: v for k, v in x.items() if k != "per_second"}
                            for mo, x in m.items()} for n, m in mets.items()}}, indent=1))
     print("\n".join(lines))
-    return {"mets": mets, "window": window, "stale": stale, "raws": raws,
+    return {"mets": mets, "window": window, "stale": stale, "priorities": prio, "raws": raws,
             "summary": summary_rows, "stalled": stalled}
 
 
@@ -324,6 +335,14 @@ def checks(rep) -> list:
                     not c["false_drops"] and not c["duplicates"] and not c["problems"],
                     "; ".join(c["problems"]) or f"{c['false_drops']} false drops, "
                     f"{c['duplicates']} duplicates"))
+    pr = (rep.get("priorities") or {}).get("runs")
+    if pr:
+        b = pr["budget"]
+        out.append(("priorities: with a budget every command acked, no radio queue drop",
+                    b["no_ack"] == 0 and b["radio_queue_drops"] == 0,
+                    f"{b['no_ack']} of {b['commands']} without an ack, "
+                    f"{b['radio_queue_drops']} queue drops (without a budget: "
+                    f"{pr['plain']['no_ack']}, {pr['plain']['radio_queue_drops']})"))
     p = mets.get("paper")
     if p and "dedup" in p:
         d = p["dedup"]
@@ -344,7 +363,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(REPO / "build" / "compare"))
-    ap.add_argument("--only", help="comma-separated scenario names (and/or 'window', 'stale')")
+    ap.add_argument("--only", help="comma-separated scenario names (and/or 'window', 'stale', "
+                                   "'priorities')")
     ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
     ap.add_argument("--stream", default="auto",
                     help="auto (the ArduSub recording in ../shared/data/tlogs, else synthetic), "
@@ -375,6 +395,8 @@ def main() -> int:
         import stale_after  # noqa: PLC0415
         print(f"{'stale':<13} {stale_after.SECONDS:>4g} s  stale_after 0 to 1 s and off, "
               f"on {len(stale_after.CASES)} streams")
+        print(f"{'priorities':<13} {'120':>4} s  a slow radio alone, with and without tx_rate: "
+              f"command round trips")
         return 0
     if not args.plugin_dir:
         args.plugin_dir = str(Path(args.mavbond).resolve().parent.parent / "plugins")

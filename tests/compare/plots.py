@@ -90,3 +90,41 @@ def summary_plot(rows: List[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def priorities_plot(raw: dict, path: Path) -> None:
+    """A slow radio alone (priorities.py): each command's round trip, without and with a
+    budget; each message's delivered rate against what the vehicle sent."""
+    runs, secs = raw["runs"], raw["seconds"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2),
+                                      gridspec_kw={"width_ratios": [1, 1.6]})
+    styles = {"plain": ("tab:red", "no budget"),
+              "budget": ("tab:green", f"tx_rate: {raw['tx_rate']}")}
+    for label, (colour, title) in styles.items():
+        r = runs[label]
+        rtt = r["rtt_ms"]
+        left.plot([100 * (i + 1) / len(rtt) for i in range(len(rtt))], rtt, color=colour,
+                  label=f"{title}: {r['no_ack']} of {r['commands']} without an ack")
+    left.set_yscale("log")
+    left.set_xlabel("commands acked (%), fastest first")
+    left.set_ylabel("round trip (ms), log scale")
+    left.set_title("Command round trip", fontsize=10)
+    left.grid(alpha=0.3, which="both")
+    left.legend(fontsize=7, loc="center right")
+    msgs = sorted(runs["plain"]["sent"], key=lambda m: (-runs["plain"]["sent"][m], m))
+    xs = range(len(msgs))
+    width = 0.28
+    right.bar([x - width for x in xs], [runs["plain"]["sent"][m] / secs for m in msgs], width,
+              color="tab:gray", label="sent by the vehicle")
+    for k, (label, (colour, title)) in enumerate(styles.items()):
+        right.bar([x + k * width for x in xs], [runs[label]["got"][m] / secs for m in msgs],
+                  width, color=colour, label=f"at the GCS, {title}")
+    right.set_xticks(list(xs))
+    right.set_xticklabels(msgs, rotation=60, ha="right", fontsize=7)
+    right.set_ylabel("frames/s")
+    right.set_title("Delivered rate per message", fontsize=10)
+    right.grid(axis="y", alpha=0.3)
+    right.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

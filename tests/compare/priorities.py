@@ -13,9 +13,10 @@ seeded radio. Without a budget, the acks queue behind telemetry in the radio's b
 are dropped with it when it is full; with one, mavbond hands the radio only what it carries,
 acks first, and thins telemetry to the newest sample of each message.
 
-Run: .venv/bin/python tests/compare/priorities.py --mavbond build/src/mavbond [--seconds 30]
-Prints, per run: command round trip p50/p99/max, commands without an ack, and the delivered
-rate of each message against what the vehicle sent."""
+A job of scripts/compare (`--only priorities`; its section and plot in results.md), or by hand:
+.venv/bin/python tests/compare/priorities.py --mavbond build/src/mavbond [--seconds 60]
+Per run: command round trip p50/p99/max, commands without an ack, the radio's queue drops and
+the delivered rate of each message against what the vehicle sent."""
 from __future__ import annotations
 
 import argparse
@@ -167,46 +168,66 @@ def run(mavbond: str, budget: bool, seconds: float, workdir: Path) -> dict:
     stats = air.stats()
     for g in (air, ground):
         g.stop()
-    rtts = list(gcs.rtt.values())
-    return {"commands": len(gcs.sent_at), "acked": len(rtts), "rtt": rtts,
-            "vehicle_acks": vehicle.acked, "sent": vehicle.sent, "got": gcs.got,
-            "radio_queue_drops": counters["up"]["dropped_queue"], "air": stats.get("radio", {})}
+    def name(mid):
+        return mav2.mavlink_map[mid].msgname if mid in mav2.mavlink_map else str(mid)
+    return {"commands": len(gcs.sent_at), "no_ack": len(gcs.sent_at) - len(gcs.rtt),
+            "rtt_ms": sorted(x * 1000 for x in gcs.rtt.values()),
+            "sent": {name(m): n for m, n in vehicle.sent.items()},
+            "got": {name(m): gcs.got[m] for m in vehicle.sent},
+            "radio_queue_drops": counters["up"]["dropped_queue"],
+            "budget": {k: v for k, v in stats.get("radio", {}).items()
+                       if k.startswith(("control_", "telemetry_", "bulk_"))}}
+
+
+def run_pair(mavbond: str, seconds: float, workdir: Path) -> dict:
+    """Both runs, on the same stream and the same seeded radio: {"plain": .., "budget": ..}."""
+    runs = {}
+    for label, budget in (("plain", False), ("budget", True)):
+        wd = workdir / label
+        wd.mkdir(parents=True, exist_ok=True)
+        runs[label] = run(mavbond, budget, seconds, wd)
+    return {"seconds": seconds, "radio_bytes_per_s": RADIO["rate"] / 8,
+            "queue_bytes": RADIO["queue_bytes"], "tx_rate": BUDGET,
+            "command_every_ms": COMMAND_EVERY * 1000, "runs": runs}
+
+
+def report_lines(raw: dict) -> list:
+    """The two runs as markdown: round trips and lost commands, then each message's rate."""
+    secs, runs = raw["seconds"], raw["runs"]
+    offered = sum(runs["plain"]["sent"].values()) / secs
+    lines = [f"A radio alone that carries {raw['radio_bytes_per_s']:.0f} B/s (a SiK at 57600 "
+             f"with error correction; {raw['queue_bytes']} B queue, tail drop), offered an "
+             f"ArduPilot-like {offered:.0f} frames/s (about 4,540 B/s) for {secs:.0f} s; the GCS "
+             f"sends a COMMAND_LONG every {raw['command_every_ms']:.0f} ms and the vehicle acks "
+             f"each at once. The same stream and the same seeded radio for both runs.", "",
+             "| air side | commands | without an ack | round trip p50 / p99 / max | "
+             "radio queue drops |", "|---|---:|---:|---:|---:|"]
+    for label, r in runs.items():
+        rtt = r["rtt_ms"]
+        name = "no budget" if label == "plain" else f"`tx_rate: {raw['tx_rate']}`"
+        lines.append(f"| {name} | {r['commands']} | {r['no_ack']} | {pct(rtt, 50):.0f} / "
+                     f"{pct(rtt, 99):.0f} / {max(rtt, default=0):.0f} ms | "
+                     f"{r['radio_queue_drops']} |")
+    lines += ["", "| message | sent by the vehicle | at the GCS, no budget | at the GCS, "
+              "with the budget |", "|---|---:|---:|---:|"]
+    for msg, n in sorted(runs["plain"]["sent"].items(), key=lambda kv: (-kv[1], kv[0])):
+        lines.append(f"| {msg} | {n / secs:.1f}/s | {runs['plain']['got'][msg] / secs:.1f}/s | "
+                     f"{runs['budget']['got'][msg] / secs:.1f}/s |")
+    b = runs["budget"]["budget"]
+    if b:
+        lines += ["", "The air gateway's own count with the budget: " + ", ".join(
+            f"{k} {v}" for k, v in b.items() if not k.endswith("_bytes") and v)]
+    return lines
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mavbond", default=str(REPO / "build" / "src" / "mavbond"))
-    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--seconds", type=float, default=60.0)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="mavbond-priorities-") as d:
-        results = {}
-        for budget in (False, True):
-            wd = Path(d) / ("budget" if budget else "plain")
-            wd.mkdir()
-            results[budget] = run(args.mavbond, budget, args.seconds, wd)
-    print(f"A radio of {RADIO['rate'] / 8:.0f} B/s ({RADIO['queue_bytes']} B queue), "
-          f"{args.seconds:.0f} s of 124 frames/s (about 4,540 B/s), a command every "
-          f"{COMMAND_EVERY * 1000:.0f} ms:")
-    print(f"  {'run':<22} {'commands':>8} {'no ack':>7} {'rtt p50':>8} {'p99':>8} {'max':>8}"
-          f" {'radio queue drops':>18}")
-    for budget, r in results.items():
-        rtt = [x * 1000 for x in r["rtt"]]
-        name = f"tx_rate: {BUDGET}" if budget else "no budget"
-        print(f"  {name:<22} {r['commands']:>8} {r['commands'] - r['acked']:>7} "
-              f"{pct(rtt, 50):>6.0f}ms {pct(rtt, 99):>6.0f}ms {max(rtt, default=0):>6.0f}ms"
-              f" {r['radio_queue_drops']:>18}")
-    print("  delivered per message (frames/s at the GCS / sent by the vehicle):")
-    names = {mid: mav2.mavlink_map[mid].msgname for mid in results[False]["sent"]
-             if mid in mav2.mavlink_map}
-    for mid, n in sorted(results[False]["sent"].items(), key=lambda kv: -kv[1]):
-        row = "    " + f"{names.get(mid, mid):<24} sent {n / args.seconds:6.1f}/s"
-        for budget, r in results.items():
-            row += f"  {'budget' if budget else 'plain'} {r['got'][mid] / args.seconds:6.1f}/s"
-        print(row)
-    air = results[True]["air"]
-    if air:
-        print("  the air gateway's budget: " + ", ".join(
-            f"{k}={v}" for k, v in air.items() if k.startswith(("control_", "telemetry_"))))
+        raw = run_pair(args.mavbond, args.seconds, Path(d))
+    print("\n".join(report_lines(raw)))
     return 0
 
 

@@ -57,6 +57,23 @@ def verdict(rep) -> str:
     return text
 
 
+def priorities_sentence(rep) -> str:
+    """The slow radio alone (priorities.py), with and without a budget, in one sentence."""
+    raw = rep.get("priorities")
+    if not raw:
+        return ""
+    runs = raw["runs"]
+
+    def p50(r):
+        v = r["rtt_ms"]
+        return v[len(v) // 2] if v else float("nan")
+    plain, budget = runs["plain"], runs["budget"]
+    return (f" A radio alone offered more than it carries (`priorities`): commands' round trip "
+            f"{p50(plain) / 1000:.2f} s and {plain['no_ack']} of {plain['commands']} without an "
+            f"ack; with `tx_rate` on its air side, {p50(budget) / 1000:.2f} s and "
+            f"{budget['no_ack']}.")
+
+
 def headline(rep, runtime: float) -> str:
     """The README's "## Results": what was compared, the summary table and plot, the verdict,
     and where the rest is."""
@@ -69,9 +86,9 @@ def headline(rep, runtime: float) -> str:
          "frames the vehicle sent):", ""]
     L += summary_table(rep)
     L += ["", "![delivered loss by scenario](tests/compare/results/summary.png)", "",
-          verdict(rep) + " How the runs are made, every scenario's table and plot, switchover, "
-          "the dedup window and `stale_after`, from the data: "
-          "[tests/compare/results/results.md](tests/compare/results/results.md).", "",
+          verdict(rep) + priorities_sentence(rep) + " How the runs are made, every scenario's "
+          "table and plot, switchover, the dedup window, `stale_after` and the slow radio, from "
+          "the data: [tests/compare/results/results.md](tests/compare/results/results.md).", "",
           "```sh",
           f"scripts/compare             # every scenario ({runtime / 60:.0f} min on 2 cores); "
           "--publish refreshes results/ and this section",
