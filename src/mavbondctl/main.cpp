@@ -70,8 +70,6 @@ std::string fetch(const std::string& path) {
     return doc;
 }
 
-constexpr const char* kClasses[] = {"control", "telemetry", "bulk"};  // a budget's, in order
-
 std::string fmt_pct(double v) {
     char b[32];
     snprintf(b, sizeof b, "%.2f%%", v);
@@ -102,14 +100,14 @@ void print_table(const pt::ptree& doc) {
         auto budget = e.get_child_optional("tx_budget");
         if (!budget)
             continue;
-        printf("budget %s: %s B/s;", e.get("name", "").c_str(), budget->get("rate", "").c_str());
-        for (const char* c : kClasses)
-            printf(" %s %s frames (%s waited, %s thinned, %s dropped)%s", c,
-                   budget->get(std::string(c) + ".frames", "0").c_str(),
-                   budget->get(std::string(c) + ".waited", "0").c_str(),
-                   budget->get(std::string(c) + ".thinned", "0").c_str(),
-                   budget->get(std::string(c) + ".dropped", "0").c_str(),
-                   c == kClasses[2] ? "\n" : ",");
+        printf("budget %s: %s B/s", e.get("name", "").c_str(), budget->get("rate", "").c_str());
+        for (const auto& [c, k] : *budget) {  // the classes, in the daemon's order
+            if (c != "rate")
+                printf("; %s %s frames (%s waited, %s thinned, %s dropped)", c.c_str(),
+                       k.get("frames", "0").c_str(), k.get("waited", "0").c_str(),
+                       k.get("thinned", "0").c_str(), k.get("dropped", "0").c_str());
+        }
+        printf("\n");
     }
     if (auto refused = doc.get("status_refused", 0ull); refused > 0)
         printf("status socket: %llu connections refused (credentials)\n", refused);
@@ -245,16 +243,17 @@ void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& pr
                fmt_ago(e.get<long long>("last_rx_ms_ago", -1)).c_str());
         // A budgeted link: frames/s out per class, and what thinning and overflow took.
         if (auto budget = e.get_child_optional("tx_budget")) {
-            printf("    tx %s B/s:", budget->get("rate", "").c_str());
-            for (const char* c : kClasses) {
+            printf("    tx %s B/s", budget->get("rate", "").c_str());
+            for (const auto& [c, k] : *budget) {  // the classes, in the daemon's order
+                if (c == "rate")
+                    continue;
                 std::string key = name + "/" + c;
-                std::string sent =
-                    per_second(key, budget->get<uint64_t>(std::string(c) + ".frames", 0));
-                uint64_t lost = budget->get<uint64_t>(std::string(c) + ".thinned", 0) +
-                                budget->get<uint64_t>(std::string(c) + ".dropped", 0);
-                printf(" %s %s/s (%s/s thinned or dropped)%s", c, sent.c_str(),
-                       per_second(key + "/lost", lost).c_str(), c == kClasses[2] ? "\n" : ",");
+                std::string sent = per_second(key, k.get<uint64_t>("frames", 0));
+                uint64_t lost = k.get<uint64_t>("thinned", 0) + k.get<uint64_t>("dropped", 0);
+                printf("; %s %s/s (%s/s thinned or dropped)", c.c_str(), sent.c_str(),
+                       per_second(key + "/lost", lost).c_str());
             }
+            printf("\n");
         }
     }
     prev = std::move(now);

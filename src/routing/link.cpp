@@ -22,13 +22,17 @@ LinkCounters& LinkCounters::operator+=(const LinkCounters& o) {
     sig_bad += o.sig_bad;
     sig_replay += o.sig_replay;
     last_rx = std::max(last_rx, o.last_rx);
-    for (size_t c = 0; c < kTxClassCount; c++) {
-        tx_class[c].frames += o.tx_class[c].frames;
-        tx_class[c].bytes += o.tx_class[c].bytes;
-        tx_class[c].waited += o.tx_class[c].waited;
-        tx_class[c].thinned += o.tx_class[c].thinned;
-        tx_class[c].dropped += o.tx_class[c].dropped;
-    }
+    for (size_t c = 0; c < kTxClassCount; c++)
+        tx_class[c] += o.tx_class[c];
+    return *this;
+}
+
+TxClassCounters& TxClassCounters::operator+=(const TxClassCounters& o) {
+    frames += o.frames;
+    bytes += o.bytes;
+    waited += o.waited;
+    thinned += o.thinned;
+    dropped += o.dropped;
     return *this;
 }
 

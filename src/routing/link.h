@@ -21,6 +21,8 @@ struct TxClassCounters {
     uint64_t waited = 0;   // of them, held for the budget (or a cap) first
     uint64_t thinned = 0;  // replaced, while held, by a newer sample of the same message
     uint64_t dropped = 0;  // bulk: the oldest when the queue was full; telemetry: no slot left
+
+    TxClassCounters& operator+=(const TxClassCounters& o);
 };
 constexpr size_t kTxClassCount = 3;
 constexpr const char* kTxClassNames[kTxClassCount] = {"control", "telemetry", "bulk"};
