@@ -37,6 +37,8 @@ from helpers import HOST, free_port, udp_client, udp_server  # noqa: E402
 from pymavlink.dialects.v20 import all as mav2  # noqa: E402
 from synth import ardupilot_stream  # noqa: E402
 
+from analyze import percentile  # noqa: E402
+
 RADIO = {"rate": 28800, "queue_bytes": 4096, "delay": "5ms"}   # SiK 57600 with ECC
 # What the radio carries, as a serial line's rate (10 bits a byte, no datagram headers charged:
 # the headers of the UDP hop to the emulator never cross the air).
@@ -135,9 +137,10 @@ class Gcs:
             time.sleep(COMMAND_EVERY)
 
 
-def pct(values, p):
-    v = sorted(values)
-    return v[min(len(v) - 1, int(p / 100 * len(v)))] if v else float("nan")
+def ms(values, q: float) -> float:
+    """A percentile of round trips (ms); nan when none came back."""
+    v = percentile(values, q)
+    return float("nan") if v is None else v
 
 
 def run(mavbond: str, budget: bool, seconds: float, workdir: Path) -> dict:
@@ -205,8 +208,8 @@ def report_lines(raw: dict) -> list:
     for label, r in runs.items():
         rtt = r["rtt_ms"]
         name = "no budget" if label == "plain" else f"`tx_rate: {raw['tx_rate']}`"
-        lines.append(f"| {name} | {r['commands']} | {r['no_ack']} | {pct(rtt, 50):.0f} / "
-                     f"{pct(rtt, 99):.0f} / {max(rtt, default=0):.0f} ms | "
+        lines.append(f"| {name} | {r['commands']} | {r['no_ack']} | {ms(rtt, 0.5):.0f} / "
+                     f"{ms(rtt, 0.99):.0f} / {max(rtt, default=0):.0f} ms | "
                      f"{r['radio_queue_drops']} |")
     lines += ["", "| message | sent by the vehicle | at the GCS, no budget | at the GCS, "
               "with the budget |", "|---|---:|---:|---:|"]

@@ -62,12 +62,11 @@ def priorities_sentence(rep) -> str:
     raw = rep.get("priorities")
     if not raw:
         return ""
-    runs = raw["runs"]
+    import priorities  # noqa: PLC0415
+    plain, budget = raw["runs"]["plain"], raw["runs"]["budget"]
 
     def p50(r):
-        v = r["rtt_ms"]
-        return v[len(v) // 2] if v else float("nan")
-    plain, budget = runs["plain"], runs["budget"]
+        return priorities.ms(r["rtt_ms"], 0.5)
     return (f" A radio alone offered more than it carries (`priorities`): commands' round trip "
             f"{p50(plain) / 1000:.2f} s and {plain['no_ack']} of {plain['commands']} without an "
             f"ack; with `tx_rate` on its air side, {p50(budget) / 1000:.2f} s and "
