@@ -47,7 +47,7 @@ struct SigningConfig {
 
 /// `tx_classes:`: the order in which a link with a budget (`tx_rate`) spends it. Control goes
 /// at once, always; telemetry (every message in neither list) waits for the budget, the newest
-/// sample of each message from each source winning, each at most at its cap; bulk waits in
+/// sample of each message from each source (and instance) winning, each at most at its cap; bulk waits in
 /// order behind telemetry.
 struct TxClassesConfig {
     std::vector<uint32_t> control;  // sorted
@@ -59,7 +59,7 @@ struct TxClassesConfig {
 /// An endpoint's `tx_rate:` and the classes it spends it by.
 struct TxBudgetConfig {
     uint64_t bytes_per_s = 0;  // what the line carries of frame bytes; 0: no budget
-    bool uart_baud = false;    // `tx_rate: baud`: the UART's own baudrate (set when it opens)
+    bool uart_baud = false;    // `tx_rate: baud`: the UART's own `baud` option, 10 bits a byte
     bool serial = false;       // given in baud: a serial line, so no datagram headers charged
     TxClassesConfig classes;   // the file's `tx_classes:` (or their defaults)
     bool enabled() const { return bytes_per_s != 0 || uart_baud; }
