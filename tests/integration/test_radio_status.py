@@ -1,0 +1,361 @@
+"""Flow control the autopilot understands (`radio_status: sik`), against the real daemon: two
+SiK radios on real pseudo-terminals report RADIO_STATUS as SiK does (MAVLink 1, system 51,
+component 68), an autopilot played by pymavlink streams telemetry over UDP and reads what it
+is told. Judged from the daemon's own counters (status socket) and what the autopilot and the
+radios received, never the clock: each report moves the radio's budget by exactly the step
+its txbuf calls for; the autopilot hears mavbond's report for the bond (MAVLink 2, its count
+within the bond's `sent`) and none of the radios' own; the bond's txbuf is the fast member's
+while it has room and drops only when both radios are full; a RADIO_STATUS from anyone else
+(another system, the far side over the bond, the autopilot) changes no budget; a reload keeps
+what the reports learned and loses no frame."""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+from pymavlink import mavutil
+
+from bonding_helpers import Gateway, bond_config
+from helpers import HOST, FrameMaker, free_port, split_stream, status_document, uart, udp_server
+
+SLOW_CEILING = 5760     # 57600 baud, 8N1
+FAST_CEILING = 92160    # 921600 baud
+AIR = [{"name": "air", "tx": "broadcast"}]
+
+
+@pytest.fixture
+def gateway(mavbond_bin, plugin_dir, tmp_path):
+    started = []
+
+    def start(endpoints, bonds=AIR, **top):
+        gw = Gateway(mavbond_bin, tmp_path, endpoints, bonds, plugin_dir=plugin_dir, **top)
+        started.append(gw)
+        return gw.start()
+
+    yield start
+    for gw in started:
+        gw.kill()
+
+
+class Radio(threading.Thread):
+    """A SiK radio on a pty: keeps every byte mavbond writes to it, and puts RADIO_STATUS into
+    the stream towards mavbond as SiK does (MAVLink 1, system 51, component 68)."""
+
+    def __init__(self, pty, rssi: int, rxerrors: int):
+        super().__init__(daemon=True)
+        self.pty, self.rssi, self.rxerrors = pty, rssi, rxerrors
+        self.data, self.stop_flag, self.sent = bytearray(), threading.Event(), 0
+        self.makers = {}
+
+    def run(self):
+        while not self.stop_flag.is_set():
+            try:
+                chunk = os.read(self.pty.master, 65536)
+                if chunk:
+                    self.data += chunk
+                    continue
+            except (BlockingIOError, OSError):
+                pass
+            time.sleep(0.002)
+
+    def report(self, txbuf: int, sysid: int = 51, compid: int = 68):
+        fm = self.makers.setdefault((sysid, compid), FrameMaker(sysid, compid, v1=True))
+        frame = fm.pack(fm.mod.MAVLink_radio_status_message(
+            self.rssi, self.rssi - 20, txbuf, 40, 35, self.rxerrors, 0))
+        self.pty.write_all(frame)
+        if (sysid, compid) == (51, 68):
+            self.sent += 1
+
+    def frames(self):
+        return split_stream(bytes(self.data))
+
+
+class Autopilot(threading.Thread):
+    """pymavlink as the autopilot on a UDP link: a HEARTBEAT a second and an ATTITUDE stream
+    (each frame told apart by its time_boot_ms), and every RADIO_STATUS it hears, with the
+    MAVLink version it came in."""
+
+    def __init__(self, port: int, fps: float = 50.0):
+        super().__init__(daemon=True)
+        self.conn = mavutil.mavlink_connection(f"udpout:{HOST}:{port}", source_system=1,
+                                               source_component=1, dialect="ardupilotmega")
+        self.fps, self.stop_flag, self.streaming = fps, threading.Event(), threading.Event()
+        self.lock = threading.Lock()
+        self.radio_status = []   # (mavlink version, sysid, compid, fields)
+        self.attitude_sent = []  # time_boot_ms of each ATTITUDE sent
+        self.extra = []          # frames to send as they are, from the loop
+
+    def run(self):
+        start = time.monotonic()
+        next_hb = next_att = start
+        t_ms = 0
+        while not self.stop_flag.is_set():
+            now = time.monotonic()
+            if now >= next_hb:
+                self.conn.mav.heartbeat_send(2, 3, 0, 0, 4)
+                next_hb += 1.0
+            if self.streaming.is_set() and now >= next_att:
+                t_ms += 1
+                self.conn.mav.attitude_send(t_ms, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+                self.attitude_sent.append(t_ms)
+                next_att = now + 1.0 / self.fps
+            with self.lock:
+                extra, self.extra = self.extra, []
+            for frame in extra:
+                self.conn.write(frame)
+            m = self.conn.recv_match(blocking=True, timeout=0.005)
+            if m is not None and m.get_type() == "RADIO_STATUS":
+                version = 2 if m.get_msgbuf()[0] == 0xFD else 1
+                with self.lock:
+                    self.radio_status.append((version, m.get_srcSystem(), m.get_srcComponent(),
+                                              m.to_dict()))
+
+    def send_raw(self, frame: bytes):
+        with self.lock:
+            self.extra.append(frame)
+
+    def heard(self):
+        with self.lock:
+            return list(self.radio_status)
+
+    def wait_heard(self, pred, timeout: float = 6.0, after: int = 0):
+        """The first RADIO_STATUS heard at index >= after for which pred(fields) holds."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for i, r in enumerate(self.heard()[after:], after):
+                if pred(r[3]):
+                    return i
+            time.sleep(0.02)
+        raise AssertionError(f"no such RADIO_STATUS heard; got {self.heard()[after:]}")
+
+    def close(self):
+        self.stop_flag.set()
+        self.join(2)
+        self.conn.close()
+
+
+def msgid_of(frame: bytes) -> int:
+    return frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == 0xFD else frame[5]
+
+
+def payload_of(frame: bytes) -> bytes:
+    start = 10 if frame[0] == 0xFD else 6
+    return frame[start:start + frame[1]]
+
+
+def wait_status(path, pred, timeout: float = 5.0) -> dict:
+    """The status document once pred(doc) holds."""
+    deadline = time.monotonic() + timeout
+    doc = None
+    while time.monotonic() < deadline:
+        doc = status_document(path)
+        if pred(doc):
+            return doc
+        time.sleep(0.01)
+    raise AssertionError(f"status never got there: {doc}")
+
+
+def endpoint(doc, name):
+    return next(e for e in doc["endpoints"] if e["name"] == name)
+
+
+def bond(doc, name="air"):
+    return next(b for b in doc["bonds"] if b["name"] == name)
+
+
+def report_in_step(radio: Radio, name: str, sock, txbuf: int) -> dict:
+    """One report, then the status once the daemon has taken it: its radio_status object."""
+    radio.report(txbuf)
+    doc = wait_status(sock, lambda d: endpoint(d, name)["radio_status"]["reports"] == radio.sent)
+    return endpoint(doc, name)["radio_status"]
+
+
+def start_radios(pty_pair, gateway, tmp_path, extra=(), slow_opts=None):
+    slow_pty, fast_pty = pty_pair(), pty_pair()
+    sock = tmp_path / "status.sock"
+    ap_port = free_port()
+    eps = [uart("slow", slow_pty.path, baud=57600, radio_status="sik", bond="air",
+                **(slow_opts or {})),
+           uart("fast", fast_pty.path, baud=921600, radio_status="sik", bond="air"),
+           udp_server("ap", ap_port), *extra]
+    gw = gateway(eps, status_socket=str(sock))
+    gw.wait_log(r"\[uart:slow\] .* open at 57600 baud")
+    gw.wait_log(r"\[uart:fast\] .* open at 921600 baud")
+    slow, fast = Radio(slow_pty, rssi=90, rxerrors=1000), Radio(fast_pty, rssi=200, rxerrors=20)
+    slow.start()
+    fast.start()
+    return gw, eps, sock, ap_port, slow, fast
+
+
+def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair, gateway,
+                                                                        tmp_path):
+    gw, _, sock, ap_port, slow, fast = start_radios(pty_pair, gateway, tmp_path)
+    ap = Autopilot(ap_port)
+    ap.start()
+    try:
+        ap.streaming.set()
+        # The fast radio has room; the slow one is full: each of its reports halves its budget
+        # down to the floor (a sixteenth), the fast one's stays at its line's rate.
+        first = report_in_step(fast, "fast", sock, 100)
+        assert first["rate"] == FAST_CEILING and first["ceiling"] == FAST_CEILING
+        rates = []
+        for i in range(5):
+            rates.append(report_in_step(slow, "slow", sock, 10)["rate"])
+            report_in_step(fast, "fast", sock, 100)
+        assert rates == [2880, 1440, 720, 360, 360]
+        doc = status_document(sock)
+        s = endpoint(doc, "slow")
+        assert s["radio_status"]["floor"] == 360 and s["radio_status"]["decreases"] == 4
+        assert s["radio_status"]["last"]["txbuf"] == 10 and s["radio_status"]["last"]["rssi"] == 90
+        assert s["tx_budget"]["rate"] == 360, "the budget is the rate the reports set"
+        assert endpoint(doc, "fast")["radio_status"]["rate"] == FAST_CEILING
+
+        # The autopilot hears the bond: the fast member has room, so the bond has.
+        i = ap.wait_heard(lambda f: f["rxerrors"] == 1020)
+        assert ap.heard()[i][3]["txbuf"] == 100 and ap.heard()[i][3]["rssi"] == 200
+
+        # Now the fast radio fills up too: the bond is full, and the autopilot is told so.
+        n = len(ap.heard())
+        report_in_step(fast, "fast", sock, 10)
+        report_in_step(slow, "slow", sock, 10)
+        j = ap.wait_heard(lambda f: f["txbuf"] == 10, after=n)
+        full = ap.heard()[j][3]
+        assert full["rxerrors"] == 1020 and full["rssi"] == 200  # ties: the stronger signal
+        assert endpoint(status_document(sock), "fast")["radio_status"]["rate"] == 46080
+
+        # The slow radio empties: its budget climbs a tenth of its ceiling a report, back to it;
+        # the bond has room again.
+        climb = [report_in_step(slow, "slow", sock, 100)["rate"] for _ in range(10)]
+        assert climb == [936, 1512, 2088, 2664, 3240, 3816, 4392, 4968, 5544, 5760]
+        n = len(ap.heard())
+        report_in_step(fast, "fast", sock, 10)
+        ap.wait_heard(lambda f: f["txbuf"] == 100 and f["rssi"] == 90, after=n)
+
+        # Everything the autopilot heard was mavbond's (MAVLink 2; the radios speak 1) from the
+        # SiK ids, no more than the bond says it sent, every radio report taken by its endpoint.
+        heard = ap.heard()
+        doc = status_document(sock)
+        air = bond(doc)["radio_status"]
+        assert heard and all(v == 2 and (sy, co) == (51, 68) for v, sy, co, _ in heard), heard
+        assert len(heard) <= air["sent"] and air["foreign"] == 0
+        assert endpoint(doc, "slow")["radio_status"]["reports"] == slow.sent
+        assert endpoint(doc, "fast")["radio_status"]["reports"] == fast.sent
+        # ... and the radios never got one another's reports or mavbond's: only the stream.
+        for r in (slow, fast):
+            assert all(msgid_of(f) != 109 for f in r.frames()), "a RADIO_STATUS to a radio"
+        print(f"\nslow radio's budget, report by report: down {rates}, up {climb}; the "
+              f"autopilot heard {len(heard)} reports for the bond, none of the radios' "
+              f"{slow.sent + fast.sent}")
+    finally:
+        ap.close()
+        slow.stop_flag.set()
+        fast.stop_flag.set()
+    assert gw.stop() == 0
+
+
+def test_a_radio_status_from_anyone_else_changes_nothing(pty_pair, gateway, tmp_path):
+    """On the radio's own line, a RADIO_STATUS from another system or component; on the bond's
+    LTE member, a SiK-looking one from the far side; from the autopilot, another: none is a
+    report, no budget moves, and none of those the bond's members brought reaches the
+    autopilot (counted as foreign)."""
+    lte_port = free_port()
+    gw, _, sock, ap_port, slow, fast = start_radios(
+        pty_pair, gateway, tmp_path, extra=[udp_server("lte", lte_port, bond="air")])
+    ap = Autopilot(ap_port)
+    ap.start()
+    lte = mavutil.mavlink_connection(f"udpout:{HOST}:{lte_port}", source_system=51,
+                                     source_component=68, dialect="ardupilotmega")
+    try:
+        report_in_step(slow, "slow", sock, 45)   # 5760 -> 4320
+        report_in_step(fast, "fast", sock, 100)
+        base = status_document(sock)
+        assert endpoint(base, "slow")["radio_status"]["rate"] == 4320
+
+        slow.report(0, sysid=52, compid=68)      # another system on the radio's line
+        slow.report(0, sysid=51, compid=1)       # another component
+        wait_status(sock, lambda d: bond(d)["radio_status"]["foreign"] == 2)
+        lte.mav.radio_status_send(250, 250, 0, 1, 1, 7777, 0)  # the far side's, over the bond
+        wait_status(sock, lambda d: bond(d)["radio_status"]["foreign"] == 3)
+        ap_rx = endpoint(status_document(sock), "ap")["rx_frames"]
+        fm = FrameMaker(51, 68)
+        ap.send_raw(fm.pack(fm.mod.MAVLink_radio_status_message(250, 250, 0, 1, 1, 8888, 0)))
+        wait_status(sock, lambda d: endpoint(d, "ap")["rx_frames"] > ap_rx)
+
+        doc = status_document(sock)
+        for name, rate in (("slow", 4320), ("fast", FAST_CEILING)):
+            r = endpoint(doc, name)["radio_status"]
+            assert r["rate"] == rate and r["reports"] == 1, (name, r)
+            assert endpoint(doc, name)["tx_budget"]["rate"] == rate
+        assert bond(doc)["radio_status"]["foreign"] == 3, "the autopilot's is not the bond's"
+        # The autopilot's went into the bond like any frame of its (a radio got it).
+        deadline = time.monotonic() + 5
+        while not any(msgid_of(f) == 109 for f in slow.frames()):
+            assert time.monotonic() < deadline, "the autopilot's RADIO_STATUS went nowhere"
+            time.sleep(0.02)
+
+        # The bond's report goes on; the autopilot never heard a foreign one (txbuf 0).
+        report_in_step(fast, "fast", sock, 100)
+        n = len(ap.heard())
+        ap.wait_heard(lambda f: True, after=n)
+        heard = ap.heard()
+        assert all(v == 2 and f["txbuf"] != 0 and f["rxerrors"] not in (7777, 8888)
+                   for v, _, _, f in heard), heard
+        assert heard[-1][3]["txbuf"] == 100
+    finally:
+        lte.close()
+        ap.close()
+        slow.stop_flag.set()
+        fast.stop_flag.set()
+    assert gw.stop() == 0
+
+
+def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, gateway, tmp_path):
+    """Mid-stream, SIGHUP with the slow radio's ceiling changed (tx_rate: 4kB/s): the UARTs stay
+    open, the rate the reports set stays (within the new ceiling) and the next report steps
+    from it, the bond's reports go on, and the fast radio gets every frame the autopilot sent,
+    once, in order."""
+    gw, eps, sock, ap_port, slow, fast = start_radios(pty_pair, gateway, tmp_path)
+    ap = Autopilot(ap_port, fps=100)
+    ap.start()
+    try:
+        report_in_step(fast, "fast", sock, 100)
+        assert report_in_step(slow, "slow", sock, 10)["rate"] == 2880
+        assert report_in_step(slow, "slow", sock, 10)["rate"] == 1440
+        ap.streaming.set()
+        time.sleep(1.0)   # a stream in flight across the reload
+        sent_before = status_document(sock)
+        eps[0]["tx_rate"] = "4kB/s"
+        gw.config_path.write_text(bond_config(eps, AIR, status_socket=str(sock)))
+        gw.proc.send_signal(signal.SIGHUP)
+        gw.wait_log(r"reloaded: ")
+        assert "reload: [slow] transmit budget now 1440 B/s" in gw.log()
+        r = report_in_step(slow, "slow", sock, 100)
+        assert (r["ceiling"], r["rate"]) == (4000, 1840)   # 1440 + a tenth of 4000
+        n = len(ap.heard())
+        ap.wait_heard(lambda f: True, after=n)
+        after = status_document(sock)
+        assert bond(after)["radio_status"]["sent"] > bond(sent_before)["radio_status"]["sent"]
+        time.sleep(1.0)
+        ap.streaming.clear()
+        sent = list(ap.attitude_sent)
+        # Everything sent reaches the fast radio: wait until its line is quiet with all of it.
+        deadline = time.monotonic() + 10
+        while True:
+            got = [f for f in fast.frames() if msgid_of(f) == 30]
+            if len(got) >= len(sent) or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        t_ms = [int.from_bytes(payload_of(f)[:4], "little") for f in got]
+        assert t_ms == sent, f"{len(sent)} sent, {len(t_ms)} on the fast radio"
+        assert gw.log().count("open at 57600 baud") == 1, "the slow radio's UART was reopened"
+        assert gw.log().count("open at 921600 baud") == 1
+        print(f"\nreload mid-stream: {len(sent)} ATTITUDE frames, every one on the fast radio "
+              f"in order; the slow radio's rate kept at 1440 B/s under its new 4000 B/s ceiling")
+    finally:
+        ap.close()
+        slow.stop_flag.set()
+        fast.stop_flag.set()
+    assert gw.stop() == 0
