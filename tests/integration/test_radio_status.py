@@ -11,9 +11,12 @@ what the reports learned and loses no frame."""
 from __future__ import annotations
 
 import os
+import re
 import signal
+import subprocess
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
@@ -246,6 +249,19 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
         # ... and the radios never got one another's reports or mavbond's: only the stream.
         for r in (slow, fast):
             assert all(msgid_of(f) != 109 for f in r.frames()), "a RADIO_STATUS to a radio"
+        # mavbondctl shows the same: each radio's last report and budget, the bond's reports.
+        ctl = str(Path(gw.binary).with_name("mavbondctl"))
+        out = subprocess.run([ctl, "-s", str(sock), "status"], capture_output=True, text=True,
+                             timeout=30).stdout
+        assert re.search(r"^radio slow: txbuf 100%, rssi 90/70, noise 40/35, rxerrors 1000 "
+                         r"\(\d+ reports, last [\d.]+ s ago\); budget 5760 of 5760 B/s$", out,
+                         re.M), out
+        assert re.search(r"^radio status air: \d+ sent to the local side, last txbuf \d+%; "
+                         r"0 from others dropped$", out, re.M), out
+        out = subprocess.run([ctl, "-s", str(sock), "watch", "--count", "1"],
+                             capture_output=True, text=True, timeout=30).stdout
+        assert re.search(r"^    radio txbuf 10%, rssi 200/180, .*; budget \d+ of 92160 B/s$",
+                         out, re.M), out
         print(f"\nslow radio's budget, report by report: down {rates}, up {climb}; the "
               f"autopilot heard {len(heard)} reports for the bond, none of the radios' "
               f"{slow.sent + fast.sent}")
