@@ -375,3 +375,124 @@ def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, ga
         slow.stop_flag.set()
         fast.stop_flag.set()
     assert gw.stop() == 0
+
+
+class SikModel(threading.Thread):
+    """A SiK radio whose air carries less than its serial line (ECC, a low air rate): frames
+    from mavbond fill a BUFFER-byte transmit buffer that drains at AIR bytes a second; a frame
+    that does not fit is lost. Once a second it reports its free buffer as SiK does."""
+    BUFFER, AIR = 2048, 3000
+
+    def __init__(self, pty):
+        super().__init__(daemon=True)
+        self.pty, self.stop_flag = pty, threading.Event()
+        self.fm = FrameMaker(51, 68, v1=True)
+        self.queue, self.level, self.pending = [], 0, bytearray()
+        self.lost, self.aired, self.reports, self.txbufs = [], [], 0, []
+
+    def take(self, frame: bytes):
+        if self.level + len(frame) > self.BUFFER:
+            self.lost.append(frame)
+        else:
+            self.queue.append(frame)
+            self.level += len(frame)
+
+    def run(self):
+        last = next_report = time.monotonic()
+        credit = 0.0
+        while not self.stop_flag.is_set():
+            try:
+                self.pending += os.read(self.pty.master, 65536)
+            except (BlockingIOError, OSError):
+                pass
+            while len(self.pending) >= 8:   # whole frames only (mavbond writes nothing else)
+                n = self.pending[1] + (12 + (13 if self.pending[2] & 1 else 0)
+                                       if self.pending[0] == 0xFD else 8)
+                if len(self.pending) < n:
+                    break
+                self.take(bytes(self.pending[:n]))
+                del self.pending[:n]
+            now = time.monotonic()
+            credit = min(credit + (now - last) * self.AIR, self.BUFFER)
+            last = now
+            while self.queue and len(self.queue[0]) <= credit:
+                f = self.queue.pop(0)
+                credit -= len(f)
+                self.level -= len(f)
+                self.aired.append(f)
+            if not self.queue:
+                credit = 0.0
+            if now >= next_report:
+                txbuf = round(100 * (self.BUFFER - self.level) / self.BUFFER)
+                self.txbufs.append(txbuf)
+                self.pty.write_all(self.fm.pack(self.fm.mod.MAVLink_radio_status_message(
+                    150, 140, txbuf, 40, 35, 0, 0)))
+                self.reports += 1
+                next_report += 1.0
+            time.sleep(0.005)
+
+
+def run_closed_loop(gateway, pty_pair, tmp_path, name, with_reports: bool, seconds: float = 12):
+    """An ArduPilot-like stream (8 telemetry messages at 200 frames/s, a COMMAND_ACK every
+    100 ms) from the autopilot through mavbond to the SiK model; what the radio aired and lost."""
+    from test_budget import telemetry_maker
+    pty = pty_pair()
+    sock = tmp_path / f"{name}.sock"
+    ap_port = free_port()
+    radio = uart("radio", pty.path, baud=57600, bond="air",
+                 **({"radio_status": "sik"} if with_reports else {"tx_rate": "baud"}))
+    gw = gateway([radio, udp_server("ap", ap_port)], status_socket=str(sock))
+    gw.wait_log(r"\[uart:radio\] .* open at 57600 baud")
+    model = SikModel(pty)
+    model.start()
+    fm = FrameMaker(1, 1)
+    tele = telemetry_maker(fm)
+    acks = set()
+    src = mavutil.mavlink_connection(f"udpout:{HOST}:{ap_port}", source_system=1)
+    start, i = time.monotonic(), 0
+    try:
+        while time.monotonic() - start < seconds:
+            due = start + i / 200
+            while time.monotonic() < due:
+                time.sleep(0.001)
+            src.write(tele(i))
+            if i % 20 == 0:
+                ack = fm.pack(fm.mod.MAVLink_command_ack_message(i // 20 % 65536, 0))
+                acks.add(ack)
+                src.write(ack)
+            i += 1
+        time.sleep(2.0)   # the radio's buffer drains
+        doc = status_document(sock)
+    finally:
+        model.stop_flag.set()
+        model.join(2)
+        src.close()
+    assert gw.stop() == 0
+    radio_doc = endpoint(doc, "radio")
+    return {
+        "offered": i, "acks": len(acks),
+        "aired": len(model.aired), "lost": len(model.lost),
+        "acks_aired": sum(f in acks for f in model.aired),
+        "acks_lost": sum(f in acks for f in model.lost),
+        "rate": radio_doc["tx_budget"]["rate"], "txbufs": model.txbufs,
+        "reports": (radio_doc.get("radio_status") or {}).get("reports"),
+        "sent_reports": model.reports,
+    }
+
+
+def test_a_radio_slower_than_its_line_loses_less_with_its_reports(gateway, pty_pair, tmp_path):
+    """The SiK model airs 3000 B/s behind a 5760 B/s line. With the budget at the line's rate
+    alone its buffer overflows for as long as the stream lasts; with radio_status the budget
+    follows the reports down to what the air carries. Figures printed (they depend on the
+    scheduler); asserted only what does not: every report taken, the budget moved below the
+    line's rate, and every frame the model took accounted for."""
+    plain = run_closed_loop(gateway, pty_pair, tmp_path, "plain", with_reports=False)
+    fed = run_closed_loop(gateway, pty_pair, tmp_path, "fed", with_reports=True)
+    assert plain["rate"] == SLOW_CEILING and plain["reports"] is None
+    assert fed["reports"] == fed["sent_reports"], "every report taken"
+    assert min(fed["txbufs"]) < 50 and fed["rate"] < SLOW_CEILING
+    for r in (plain, fed):
+        print(f"\n{'radio_status' if r is fed else 'tx_rate: baud'}: {r['offered']} frames "
+              f"offered in 12 s; the radio aired {r['aired']}, lost {r['lost']} to a full buffer "
+              f"(COMMAND_ACK: {r['acks_aired']} aired, {r['acks_lost']} lost of {r['acks']}); "
+              f"budget at the end {r['rate']} B/s; txbuf reports {r['txbufs']}")
