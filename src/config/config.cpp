@@ -964,6 +964,11 @@ void Parser::parse_radio_status(const Entry& e, const std::string& ctx,
         fail(value_mark(e), ctx + "'radio_status': '" + text +
                                 "' is not a radio mavbond knows (sik: a SiK radio such as 3DR "
                                 "or RFD900, reporting as system 51, component 68)");
+    // One radio, one link: a server's peers or connections are links of their own.
+    if (type.mode && std::string_view(type.mode) == "server")
+        fail(value_mark(e), ctx + "'radio_status' does not apply to a " + type.title() +
+                                " endpoint (each peer is a link of its own): give it to a "
+                                "UART or a client");
     budget.radio_status = RadioStatusSource::Sik;
     if (budget.enabled())
         return;

@@ -606,11 +606,16 @@ const BadCase kBadCases[] = {
     {"RadioStatusUnknown", GCS "    radio_status: 3dr\n",
      "t.yaml:6:19: endpoint 'gcs': 'radio_status': '3dr' is not a radio mavbond knows (sik: a "
      "SiK radio such as 3DR or RFD900, reporting as system 51, component 68)"},
-    {"RadioStatusUdpNoRate", GCS "    radio_status: sik\n",
-     "t.yaml:6:19: endpoint 'gcs': 'radio_status' on a udp server endpoint needs 'tx_rate' "
+    {"RadioStatusOnServer", GCS "    radio_status: sik\n",
+     "t.yaml:6:19: endpoint 'gcs': 'radio_status' does not apply to a udp server endpoint "
+     "(each peer is a link of its own): give it to a UART or a client"},
+    {"RadioStatusUdpNoRate",
+     "endpoints:\n  - {name: r, type: udp, mode: client, address: 127.0.0.1:5, radio_status: sik}\n",
+     "t.yaml:2:76: endpoint 'r': 'radio_status' on a udp client endpoint needs 'tx_rate' "
      "(the radio's rate, e.g. 57600baud)"},
-    {"RadioStatusNoBond", GCS "    tx_rate: 5kB/s\n    radio_status: sik\n",
-     "t.yaml:7:19: endpoint 'gcs': 'radio_status' needs the endpoint in a bond (the bond "
+    {"RadioStatusNoBond",
+     "endpoints:\n  - {name: r, type: uart, device: /dev/ttyS0, radio_status: sik}\n",
+     "t.yaml:2:61: endpoint 'r': 'radio_status' needs the endpoint in a bond (the bond "
      "reports to its local side; a bond of one link will do)"},
     {"TxRateOnTlog", "endpoints:\n  - {name: log, type: tlog, directory: /l, tx_rate: 5kB/s}\n",
      "t.yaml:2:44: endpoint 'log': key 'tx_rate' does not apply to a tlog endpoint"},
