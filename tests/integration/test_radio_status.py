@@ -328,6 +328,36 @@ def test_a_radio_status_from_anyone_else_changes_nothing(pty_pair, gateway, tmp_
     assert gw.stop() == 0
 
 
+def test_reports_that_pile_up_in_a_stall_each_count(pty_pair, gateway, tmp_path):
+    """The daemon frozen (SIGSTOP) while the slow radio reports three times: once it runs
+    again, each report is taken and steps the budget, as if none had waited; none reaches
+    the autopilot."""
+    gw, _, sock, ap_port, slow, fast = start_radios(pty_pair, gateway, tmp_path)
+    ap = Autopilot(ap_port)
+    ap.start()
+    try:
+        report_in_step(fast, "fast", sock, 100)
+        assert report_in_step(slow, "slow", sock, 100)["rate"] == SLOW_CEILING
+        gw.proc.send_signal(signal.SIGSTOP)
+        try:
+            for _ in range(3):
+                slow.report(10)
+                time.sleep(0.3)
+        finally:
+            gw.proc.send_signal(signal.SIGCONT)
+        doc = wait_status(sock, lambda d: endpoint(d, "slow")["radio_status"]["reports"] == 4)
+        r = endpoint(doc, "slow")["radio_status"]
+        assert (r["rate"], r["decreases"], r["stale"]) == (720, 3, 0), r
+        n = len(ap.heard())
+        ap.wait_heard(lambda f: True, after=n)
+        assert all(v == 2 for v, _, _, _ in ap.heard()), "a radio's own report got through"
+    finally:
+        ap.close()
+        slow.stop_flag.set()
+        fast.stop_flag.set()
+    assert gw.stop() == 0
+
+
 def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, gateway, tmp_path):
     """Mid-stream, SIGHUP with the slow radio's ceiling changed (tx_rate: 4kB/s): the UARTs stay
     open, the rate the reports set stays (within the new ceiling) and the next report steps
