@@ -127,6 +127,9 @@ private:
     /// The budget config_ asks for (null for none); with `radio_status`, at the rate the radio's
     /// reports made it so far.
     std::unique_ptr<TxBudget> make_budget();
+    /// Keeps radio_ in step with config_ (made, its ceiling moved, or dropped with no
+    /// `radio_status` or no budget, `ceiling` 0); returns the rate a budget starts at.
+    uint64_t follow_radio(uint64_t ceiling);
     /// A report of the radio on this link: the budget follows it.
     void take_radio_report(const Frame& frame, TimePoint arrival);
     /// The budget at the radio's rate now; what it holds goes when the new rate lets it.

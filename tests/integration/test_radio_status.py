@@ -398,6 +398,18 @@ def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, ga
         assert t_ms == sent, f"{len(sent)} sent, {len(t_ms)} on the fast radio"
         assert gw.log().count("open at 57600 baud") == 1, "the slow radio's UART was reopened"
         assert gw.log().count("open at 921600 baud") == 1
+
+        # Another reload takes the slow radio's reports and budget away: its reports are then
+        # nobody's (the fast radio still reports for the bond), dropped and counted.
+        del eps[0]["tx_rate"], eps[0]["radio_status"]
+        gw.config_path.write_text(bond_config(eps, AIR, status_socket=str(sock)))
+        gw.proc.send_signal(signal.SIGHUP)
+        gw.wait_log(r"reloaded: ", count=2)
+        assert "reload: [slow] transmit budget now none" in gw.log()
+        slow.report(0)
+        doc = wait_status(sock, lambda d: bond(d)["radio_status"]["foreign"] == 1)
+        assert "radio_status" not in endpoint(doc, "slow") and "tx_budget" not in endpoint(doc, "slow")
+        assert gw.log().count("open at 57600 baud") == 1
         print(f"\nreload mid-stream: {len(sent)} ATTITUDE frames, every one on the fast radio "
               f"in order; the slow radio's rate kept at 1440 B/s under its new 4000 B/s ceiling")
     finally:
