@@ -109,13 +109,14 @@ void Endpoint::apply_radio_rate(uint64_t rate) {
 }
 
 void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
-    stats_.last_rx = arrival;
     // The radio's own report is taken here and goes no further: mavbond reports for the bond
-    // (src/daemon/radio_report.h). Before the signature check: a radio cannot sign.
+    // (src/daemon/radio_report.h). Before the signature check: a radio cannot sign. Nor does it
+    // make the link look alive: the radio says it whether or not the far side hears.
     if (radio_ && is_radio_report(frame, config_.tx_budget.radio_status)) {
         take_radio_report(frame, arrival);
         return;
     }
+    stats_.last_rx = arrival;
     if (verifier_ && !authentic(frame))
         return;
     bool accepted = filter_in_.empty() || filter_in_.passes(frame.msgid);

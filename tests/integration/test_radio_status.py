@@ -244,8 +244,11 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
         air = bond(doc)["radio_status"]
         assert heard and all(v == 2 and (sy, co) == (51, 68) for v, sy, co, _ in heard), heard
         assert len(heard) <= air["sent"] and air["foreign"] == 0
-        assert endpoint(doc, "slow")["radio_status"]["reports"] == slow.sent
-        assert endpoint(doc, "fast")["radio_status"]["reports"] == fast.sent
+        for name, radio in (("slow", slow), ("fast", fast)):
+            e = endpoint(doc, name)
+            assert e["radio_status"]["reports"] == radio.sent
+            # A radio's own reports say nothing of the far side: the link has heard nothing.
+            assert e["rx_frames"] == radio.sent and e["last_rx_ms_ago"] == -1, e
         # ... and the radios never got one another's reports or mavbond's: only the stream.
         for r in (slow, fast):
             assert all(msgid_of(f) != 109 for f in r.frames()), "a RADIO_STATUS to a radio"
