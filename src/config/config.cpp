@@ -294,6 +294,9 @@ private:
                                 const std::string& ctx, bool given) const;
     OptionValue parse_address(const Entry& e, const std::string& ctx) const;
     void parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const;
+    /// After parse_tx_rate: `radio_status` (a UART without `tx_rate` takes its baud).
+    void parse_radio_status(const Entry& e, const std::string& ctx, const EndpointSchema& type,
+                            TxBudgetConfig& budget) const;
     void parse_tx_rate(const Entry& e, const std::string& ctx, const EndpointSchema& type,
                        TxBudgetConfig& budget) const;
     void parse_tx_classes(const Entry& section, TxClassesConfig& classes) const;
@@ -311,6 +314,7 @@ private:
     std::map<std::string, YAML::Mark> endpoint_names_;
     std::map<std::string, YAML::Mark> bond_names_;
     std::vector<BondRef> bond_refs_;
+    std::vector<BondRef> radio_refs_;  // endpoints with `radio_status`: each must be in a bond
     std::vector<ScopeRef> scope_refs_;
 };
 
@@ -561,7 +565,8 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
                                                            "allow_out", "block_out"};
     // A recorder (a flight log) takes none of these: nothing comes from it, and it has no line.
     static const std::set<std::string_view> kReceiverKeys = {"allow_in", "block_in", "bond",
-                                                             "signing", "tx_rate"};
+                                                             "signing", "tx_rate",
+                                                             "radio_status"};
     std::string ctx = "endpoint #" + std::to_string(index) + ": ";
     if (!node.IsMap())
         fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
@@ -667,6 +672,10 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
         parse_signing(*e, ctx, ep.signing);
     if (const Entry* e = view.find("tx_rate"))
         parse_tx_rate(*e, ctx, type, ep.tx_budget);
+    if (const Entry* e = view.find("radio_status")) {
+        parse_radio_status(*e, ctx, type, ep.tx_budget);
+        radio_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*e)});
+    }
     config_.endpoints.push_back(std::move(ep));
 }
 
@@ -948,6 +957,28 @@ void Parser::parse_tx_rate(const Entry& e, const std::string& ctx, const Endpoin
     budget.serial = text.ends_with("baud");
 }
 
+void Parser::parse_radio_status(const Entry& e, const std::string& ctx,
+                                const EndpointSchema& type, TxBudgetConfig& budget) const {
+    const std::string& text = scalar(e, ctx);
+    if (text != "sik")
+        fail(value_mark(e), ctx + "'radio_status': '" + text +
+                                "' is not a radio mavbond knows (sik: a SiK radio such as 3DR "
+                                "or RFD900, reporting as system 51, component 68)");
+    // One radio, one link: a server's peers or connections are links of their own.
+    if (type.mode && std::string_view(type.mode) == "server")
+        fail(value_mark(e), ctx + "'radio_status' does not apply to a " + type.title() +
+                                " endpoint (each peer is a link of its own): give it to a "
+                                "UART or a client");
+    budget.radio_status = RadioStatusSource::Sik;
+    if (budget.enabled())
+        return;
+    // The ceiling the reports lower the budget from: a UART's line, else it must be said.
+    if (std::string_view(type.type) != "uart")
+        fail(value_mark(e), ctx + "'radio_status' on a " + type.title() +
+                                " endpoint needs 'tx_rate' (the radio's rate, e.g. 57600baud)");
+    budget.uart_baud = budget.serial = true;
+}
+
 void Parser::parse_tx_classes(const Entry& section, TxClassesConfig& classes) const {
     const std::string ctx = "tx_classes: ";
     static const std::set<std::string_view> kKeys = {"control", "bulk", "caps"};
@@ -1021,6 +1052,13 @@ void Parser::cross_check() {
         if (!bond_names_.count(ep.bond))
             fail(ref.mark, "endpoint '" + ep.name + "': bond '" + ep.bond +
                                "' is not declared under 'bonds:'");
+    }
+    for (const auto& ref : radio_refs_) {
+        const auto& ep = config_.endpoints[ref.endpoint];
+        if (ep.bond.empty())
+            fail(ref.mark, "endpoint '" + ep.name + "': 'radio_status' needs the endpoint in a "
+                           "bond (the bond reports to its local side; a bond of one link will "
+                           "do)");
     }
     for (const auto& bond : config_.bonds) {
         bool has_member = false;

@@ -56,12 +56,21 @@ struct TxClassesConfig {
     bool operator==(const TxClassesConfig&) const = default;
 };
 
+/// `radio_status:`: whose RADIO_STATUS reports set a link's budget.
+enum class RadioStatusSource : uint8_t {
+    None,
+    Sik,  // a SiK radio (3DR, RFD900): system 51 ('3'), component 68 ('D')
+};
+
 /// An endpoint's `tx_rate:` and the classes it spends it by.
 struct TxBudgetConfig {
     uint64_t bytes_per_s = 0;  // what the line carries of frame bytes; 0: no budget
     bool uart_baud = false;    // `tx_rate: baud`: the UART's own `baud` option, 10 bits a byte
     bool serial = false;       // given in baud: a serial line, so no datagram headers charged
     TxClassesConfig classes;   // the file's `tx_classes:` (or their defaults)
+    /// `radio_status: sik`: the radio on this link reports its transmit buffer, and the budget
+    /// follows it below the rate above (the ceiling); see src/endpoints/radio_flow.h.
+    RadioStatusSource radio_status = RadioStatusSource::None;
     bool enabled() const { return bytes_per_s != 0 || uart_baud; }
     bool operator==(const TxBudgetConfig&) const = default;
 };

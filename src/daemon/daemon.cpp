@@ -67,6 +67,7 @@ Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Confi
 
 Daemon::~Daemon() {
     link_events_.reset();
+    radio_report_.reset();
     // Endpoints go away because the daemon stops, not because links fail: the filters must
     // not take it for an outage (a link switch logged at every shutdown).
     router_.set_filter(nullptr);
@@ -138,6 +139,7 @@ std::optional<Daemon::StartError> Daemon::start() {
     endpoints_ = std::move(endpoints.value());
     started_ = loop_.now();
     start_local_source(true);
+    radio_report_ = std::make_unique<RadioStatusReporter>(loop_, router_, endpoints_);
     open_status_socket();
     open_metrics();
     // The timers read the current config each time, so a reload changes their periods.
@@ -257,6 +259,7 @@ void Daemon::install_filters(std::unique_ptr<FilterChain> chain, const Config& c
     log_renumbering();
     chain_ = std::move(chain);
     router_.replace_bonds(config);
+    router_.mark_radio_status_bonds(config);
     router_.set_filter(chain_.get());
 }
 
@@ -327,6 +330,7 @@ void Daemon::apply_settings(std::unique_ptr<Config> next) {
     const bool metrics_moved = !(config_->metrics == next->metrics);
     const bool identity_changed = !(config_->identity == next->identity);
     config_ = std::move(next);
+    router_.mark_radio_status_bonds(*config_);
     log_set_level(config_->log_level);
     start_local_source(identity_changed);
     if (status_moved)
@@ -356,6 +360,12 @@ Status Daemon::status() const {
                 out.links.push_back({link->name(), id == bond.active_link()});
         }
         out.renumber = bond.renumber_counters();
+        out.reports_radio_status = bond.reports_radio_status;
+        out.foreign_radio_status = bond.foreign_radio_status;
+        if (const auto* r = radio_report_ ? radio_report_->find(bond.name()) : nullptr) {
+            out.radio_status_sent = r->sent;
+            out.radio_status_last = r->last;
+        }
     }
     s.frames_routed = router_.frames_routed();
     s.frames_without_destination = router_.frames_without_destination();

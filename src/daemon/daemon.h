@@ -14,6 +14,7 @@
 #include "config/config.h"
 #include "core/event_loop.h"
 #include "daemon/metrics_http.h"
+#include "daemon/radio_report.h"
 #include "daemon/status.h"
 #include "daemon/status_socket.h"
 #include "endpoints/endpoint.h"
@@ -96,6 +97,7 @@ private:
     std::vector<Endpoint::Ptr> endpoints_;  // config order
     std::unique_ptr<LocalSource> local_source_;
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
+    std::unique_ptr<RadioStatusReporter> radio_report_;  // reads endpoints_ at each report
     std::unique_ptr<StatusSocket> status_;
     std::unique_ptr<MetricsHttpServer> metrics_;
     ProblemReport report_;

@@ -60,12 +60,49 @@ int64_t ms_since(TimePoint t, TimePoint now) {
     return std::chrono::duration_cast<milliseconds>(now - t).count();
 }
 
+/// Calls f(name, value) for each field of a RADIO_STATUS, in one order.
+template <typename F>
+void for_each_field(const RadioReport& r, F&& f) {
+    f("txbuf", r.txbuf);
+    f("rssi", r.rssi);
+    f("remrssi", r.remrssi);
+    f("noise", r.noise);
+    f("remnoise", r.remnoise);
+    f("rxerrors", r.rxerrors);
+    f("fixed", r.fixed);
+}
+
+std::string report_json(const RadioReport& r) {
+    std::string out = "{";
+    for_each_field(r, [&out](const char* name, uint64_t v) {
+        out += std::string(out.size() == 1 ? "\"" : ",\"") + name + "\":" + std::to_string(v);
+    });
+    return out + "}";
+}
+
+/// An endpoint's `radio_status` object: its radio's last report and what the reports made of
+/// its budget.
+std::string radio_json(const RadioFlow& r, TimePoint now) {
+    const RadioFlow::Counters& c = r.counters();
+    return ",\"radio_status\":{\"reports\":" + std::to_string(c.reports) +
+           ",\"decreases\":" + std::to_string(c.decreases) +
+           ",\"increases\":" + std::to_string(c.increases) +
+           ",\"stale\":" + std::to_string(c.stale) + ",\"rate\":" + std::to_string(r.rate()) +
+           ",\"ceiling\":" + std::to_string(r.ceiling()) + ",\"floor\":" +
+           std::to_string(r.floor()) + ",\"age_ms\":" +
+           std::to_string(c.reports ? ms_since(r.last_at(), now) : -1) + ",\"last\":" +
+           (c.reports ? report_json(r.last()) : "null") + "}";
+}
+
 }  // namespace
 
 Status::Endpoint endpoint_status(const Endpoint& e) {
-    return Status::Endpoint{e.name(), e.kind(), e.config().bond,
-                            e.config().signing.enabled && e.config().signing.require,
-                            e.budget() ? e.budget()->bytes_per_s() : 0, e.total_counters()};
+    Status::Endpoint out{e.name(), e.kind(), e.config().bond,
+                         e.config().signing.enabled && e.config().signing.require,
+                         e.budget() ? e.budget()->bytes_per_s() : 0, e.total_counters(), {}};
+    if (e.radio())
+        out.radio = *e.radio();
+    return out;
 }
 
 std::string status_json(const Status& s) {
@@ -95,6 +132,8 @@ std::string status_json(const Status& s) {
             }
             out += "}";
         }
+        if (e.radio)
+            out += radio_json(*e.radio, s.taken);
         out += "}";
     }
     out += "],\"bonds\":[";
@@ -110,6 +149,10 @@ std::string status_json(const Status& s) {
                        std::to_string(value);
             out += "}";
         }
+        if (b.reports_radio_status)
+            out += ",\"radio_status\":{\"sent\":" + std::to_string(b.radio_status_sent) +
+                   ",\"foreign\":" + std::to_string(b.foreign_radio_status) + ",\"last\":" +
+                   (b.radio_status_last ? report_json(*b.radio_status_last) : "null") + "}";
         out += "}";
     }
     out += "],\"filters\":[";
@@ -152,6 +195,25 @@ MetricSet status_metrics(const Status& s) {
                 });
             }
         }
+        if (e.radio) {
+            const RadioFlow& r = *e.radio;
+            set.counter("mavbond_endpoint_radio_reports",
+                        "RADIO_STATUS reports taken from the radio on the endpoint.",
+                        r.counters().reports, labels);
+            set.gauge("mavbond_endpoint_radio_rate_bytes",
+                      "The budget the radio's reports set (radio_status), bytes a second.",
+                      static_cast<double>(r.rate()), labels);
+            set.gauge("mavbond_endpoint_radio_ceiling_bytes",
+                      "The rate the radio's reports set the budget below, bytes a second.",
+                      static_cast<double>(r.ceiling()), labels);
+            if (r.counters().reports != 0) {
+                for_each_field(r.last(), [&](const char* name, uint64_t v) {
+                    set.gauge(std::string("mavbond_endpoint_radio_") + name,
+                              "A field of the radio's last RADIO_STATUS.", static_cast<double>(v),
+                              labels);
+                });
+            }
+        }
         // "Last heard" for alerts on a silent link; absent until the first frame.
         if (e.counters.last_rx != TimePoint{})
             set.gauge("mavbond_endpoint_last_rx_age_seconds",
@@ -180,6 +242,18 @@ MetricSet status_metrics(const Status& s) {
         for (const auto& [name, value] : b.renumber)
             set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
                         {{"bond", b.name}});
+        if (b.reports_radio_status) {
+            set.counter("mavbond_bond_radio_status_sent",
+                        "RADIO_STATUS frames mavbond sent the local side for the bond.",
+                        b.radio_status_sent, {{"bond", b.name}});
+            set.counter("mavbond_bond_radio_status_foreign",
+                        "RADIO_STATUS frames not from a member's own radio, dropped.",
+                        b.foreign_radio_status, {{"bond", b.name}});
+            if (b.radio_status_last)
+                set.gauge("mavbond_bond_radio_txbuf",
+                          "The txbuf of the last RADIO_STATUS sent for the bond, percent.",
+                          b.radio_status_last->txbuf, {{"bond", b.name}});
+        }
     }
     set.declare(kFilterDroppedMetric, kFilterDroppedHelp, MetricSet::Type::Counter);
     // The chain checked its samples against one another; one that clashes with a family of

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -25,6 +26,7 @@ struct Status {
         bool signing_required = false;
         uint64_t tx_rate = 0;  // its budget in bytes a second (tx_rate); 0: none
         LinkCounters counters;
+        std::optional<RadioFlow> radio;  // `radio_status`: its radio's reports and their effect
     };
     struct BondLink {
         std::string name;
@@ -37,6 +39,10 @@ struct Status {
         uint64_t switches = 0;
         std::vector<BondLink> links;  // the members' links attached now
         std::vector<std::pair<const char*, uint64_t>> renumber;  // empty: no renumbering
+        bool reports_radio_status = false;       // a member has `radio_status`
+        uint64_t foreign_radio_status = 0;       // others' RADIO_STATUS dropped on its members
+        uint64_t radio_status_sent = 0;          // its own sent to the local side
+        std::optional<RadioReport> radio_status_last;  // the last of them
     };
 
     TimePoint taken;

@@ -38,14 +38,37 @@ Endpoint::Endpoint(const EndpointConfig& config, std::string name, EventLoop& lo
 
 std::unique_ptr<TxBudget> Endpoint::make_budget() {
     const TxBudgetConfig& b = config_.tx_budget;
-    if (!b.enabled())
+    if (!b.enabled()) {
+        follow_radio(0);
         return nullptr;
+    }
     // A UART's own rate: 8N1 puts 10 bits on the line for each byte. A rate in baud is a
     // serial line's (a radio behind the datagrams): no headers go over it.
     uint64_t rate = b.uart_baud ? config_.options.number("baud") / 10 : b.bytes_per_s;
+    rate = follow_radio(rate);
     bool headers = tx_.mode() == TxQueue::Mode::Datagram && !b.serial;
     return std::make_unique<TxBudget>(rate, headers ? kDatagramOverhead : 0, b.classes,
                                       config_.tx_queue_bytes, stats_.tx_class);
+}
+
+uint64_t Endpoint::follow_radio(uint64_t ceiling) {
+    if (config_.tx_budget.radio_status == RadioStatusSource::None || ceiling == 0) {
+        radio_.reset();
+        radio_timer_.cancel();
+        return ceiling;
+    }
+    if (radio_)
+        radio_->set_ceiling(ceiling);  // a reload: what the reports learned stays
+    else
+        radio_ = std::make_unique<RadioFlow>(ceiling);
+    if (!radio_timer_.active()) {
+        radio_timer_ = loop_.schedule(seconds(1), [this] {
+            if (radio_ && budget_ && radio_->check(loop_.now()) != budget_->bytes_per_s())
+                apply_radio_rate(radio_->rate());
+            return Duration(seconds(1));
+        });
+    }
+    return radio_->rate();
 }
 
 void Endpoint::retune(const TxBudgetConfig& budget) {
@@ -66,7 +89,33 @@ void Endpoint::defer(EventLoop& loop, std::function<void()> fn) {
     });
 }
 
+void Endpoint::take_radio_report(const Frame& frame, TimePoint arrival) {
+    uint64_t before = radio_->rate();
+    uint64_t rate = radio_->report(RadioReport::decode(frame.payload), arrival);
+    if (rate != before)
+        apply_radio_rate(rate);
+}
+
+void Endpoint::apply_radio_rate(uint64_t rate) {
+    if (!budget_)
+        return;
+    budget_->set_rate(rate, loop_.now());
+    // Held frames wait on a timer set for the old rate: after this round (the receive batch
+    // in progress lends frames to the queue until its end), they go by the new one.
+    defer(loop_, [this] {
+        if (budget_ && budget_->holding())
+            release_budgeted();
+    });
+}
+
 void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
+    // The radio's own report is taken here and goes no further: mavbond reports for the bond
+    // (src/daemon/radio_report.h). Before the signature check: a radio cannot sign. Nor does it
+    // make the link look alive: the radio says it whether or not the far side hears.
+    if (radio_ && is_radio_report(frame, config_.tx_budget.radio_status)) {
+        take_radio_report(frame, arrival);
+        return;
+    }
     stats_.last_rx = arrival;
     if (verifier_ && !authentic(frame))
         return;

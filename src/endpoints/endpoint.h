@@ -13,6 +13,7 @@
 
 #include "config/config.h"
 #include "core/event_loop.h"
+#include "endpoints/radio_flow.h"
 #include "endpoints/tx_budget.h"
 #include "endpoints/tx_queue.h"
 #include "mavlink/frame.h"
@@ -83,6 +84,8 @@ public:
     EventLoop& loop() const { return loop_; }
     /// Its transmit budget (`tx_rate`), or null.
     const TxBudget* budget() const { return budget_.get(); }
+    /// What its radio reported and made of the budget (`radio_status`), or null.
+    const RadioFlow* radio() const { return radio_.get(); }
 
     /// Counters of this endpoint alone.
     const LinkCounters& counters() const override { return stats_; }
@@ -121,8 +124,16 @@ private:
     void release_budgeted();
     /// Writes a frame whose bytes live only during the call (the budget's copies).
     void lend_now(std::span<const uint8_t> frame);
-    /// The budget config_ asks for (null for none).
+    /// The budget config_ asks for (null for none); with `radio_status`, at the rate the radio's
+    /// reports made it so far.
     std::unique_ptr<TxBudget> make_budget();
+    /// Keeps radio_ in step with config_ (made, its ceiling moved, or dropped with no
+    /// `radio_status` or no budget, `ceiling` 0); returns the rate a budget starts at.
+    uint64_t follow_radio(uint64_t ceiling);
+    /// A report of the radio on this link: the budget follows it.
+    void take_radio_report(const Frame& frame, TimePoint arrival);
+    /// The budget at the radio's rate now; what it holds goes when the new rate lets it.
+    void apply_radio_rate(uint64_t rate);
 
     EndpointConfig config_;  // before the filters, which point into it; only retune() changes it
     TxQueue tx_;
@@ -130,7 +141,9 @@ private:
     MessageFilter filter_in_;
     MessageFilter filter_out_;
     std::shared_ptr<SignatureVerifier> verifier_;  // null unless the config has `signing:`
-    std::unique_ptr<TxBudget> budget_;  // null unless the config has `tx_rate:`
+    std::unique_ptr<RadioFlow> radio_;  // null unless the config has `radio_status:`
+    EventLoop::Timer radio_timer_;      // notices reports that stopped
+    std::unique_ptr<TxBudget> budget_;  // null unless the config has `tx_rate:` (or radio_status)
     EventLoop::Timer budget_timer_;     // runs while the budget holds frames
     TimePoint budget_due_ = TimePoint::max();
 };

@@ -19,12 +19,22 @@ constexpr size_t kRecordHeader = 2;  // a bulk record's u16 length
 
 TxBudget::TxBudget(uint64_t bytes_per_s, uint32_t overhead, const TxClassesConfig& classes,
                    size_t bulk_capacity, std::array<TxClassCounters, kTxClassCount>& counters)
-    : rate_(bytes_per_s), overhead_(overhead),
-      burst_(std::max(static_cast<double>(kMaxFrameLen + overhead),
-                      static_cast<double>(bytes_per_s) * 0.02)),
+    : rate_(bytes_per_s), overhead_(overhead), burst_(burst_for(bytes_per_s, overhead)),
       classes_(classes), tokens_(burst_),
       ring_(std::max(bulk_capacity, kMaxFrameLen + kRecordHeader)), counters_(counters) {
     slots_.reserve(32);
+}
+
+double TxBudget::burst_for(uint64_t bytes_per_s, uint32_t overhead) {
+    return std::max(static_cast<double>(kMaxFrameLen + overhead),
+                    static_cast<double>(bytes_per_s) * 0.02);
+}
+
+void TxBudget::set_rate(uint64_t bytes_per_s, TimePoint now) {
+    refill(now);  // what accrued so far, at the old rate
+    rate_ = std::max<uint64_t>(bytes_per_s, 1);
+    burst_ = burst_for(rate_, overhead_);
+    tokens_ = std::min(tokens_, burst_);
 }
 
 TxClass TxBudget::classify(uint32_t msgid) const {

@@ -73,6 +73,10 @@ public:
     /// Forgets everything held (the link went away); returns how many frames that was.
     uint64_t clear();
 
+    /// Spends `bytes_per_s` from `now` on (a radio's report moved it): what the bucket holds
+    /// stays, up to the new burst.
+    void set_rate(uint64_t bytes_per_s, TimePoint now);
+
     bool holding() const { return held_telemetry_ != 0 || bulk_frames_ != 0; }
     uint64_t bytes_per_s() const { return rate_; }
     const TxClassCounters& counters(TxClass c) const { return counters_[static_cast<size_t>(c)]; }
@@ -115,9 +119,11 @@ private:
     void ring_read(size_t at, uint8_t* into, size_t n) const;
     void ring_write(size_t at, const uint8_t* from, size_t n);
 
-    const uint64_t rate_;
+    static double burst_for(uint64_t bytes_per_s, uint32_t overhead);
+
+    uint64_t rate_;
     const uint32_t overhead_;
-    const double burst_;
+    double burst_;
     const TxClassesConfig classes_;
     double tokens_;
     TimePoint refilled_{};

@@ -76,6 +76,24 @@ std::string fmt_pct(double v) {
     return b;
 }
 
+/// A radio link's `radio_status` object in one line: its last report, the budget it set.
+std::string radio_line(const pt::ptree& r) {
+    char b[256];
+    if (r.get("reports", 0ull) == 0) {
+        snprintf(b, sizeof b, "no report yet; budget %s B/s", r.get("rate", "").c_str());
+        return b;
+    }
+    snprintf(b, sizeof b,
+             "txbuf %s%%, rssi %s/%s, noise %s/%s, rxerrors %s (%s reports, last %.1f s ago); "
+             "budget %s of %s B/s",
+             r.get("last.txbuf", "").c_str(), r.get("last.rssi", "").c_str(),
+             r.get("last.remrssi", "").c_str(), r.get("last.noise", "").c_str(),
+             r.get("last.remnoise", "").c_str(), r.get("last.rxerrors", "").c_str(),
+             r.get("reports", "").c_str(), r.get("age_ms", 0ll) / 1000.0,
+             r.get("rate", "").c_str(), r.get("ceiling", "").c_str());
+    return b;
+}
+
 void print_table(const pt::ptree& doc) {
     printf("mavbond %s, up %s s\n\n", doc.get("version", "?").c_str(), doc.get("uptime_s", "?").c_str());
     printf("%-28s %-11s %-9s %10s %11s %8s %9s %10s %8s\n", "ENDPOINT", "KIND", "BOND", "RX FRAMES",
@@ -109,6 +127,11 @@ void print_table(const pt::ptree& doc) {
         }
         printf("\n");
     }
+    // Radio links (radio_status): what the radio said last, and the budget it set.
+    for (const auto& [_, e] : doc.get_child("endpoints", {})) {
+        if (auto radio = e.get_child_optional("radio_status"))
+            printf("radio %s: %s\n", e.get("name", "").c_str(), radio_line(*radio).c_str());
+    }
     if (auto refused = doc.get("status_refused", 0ull); refused > 0)
         printf("status socket: %llu connections refused (credentials)\n", refused);
     auto bonds = doc.get_child("bonds", {});
@@ -118,6 +141,13 @@ void print_table(const pt::ptree& doc) {
             printf("%-12s %-10s %-20s %8s\n", b.get("name", "").c_str(), b.get("tx", "").c_str(),
                    b.get("active", "").empty() ? "-" : b.get("active", "").c_str(),
                    b.get("switches", "").c_str());
+        for (const auto& [_, b] : bonds) {
+            if (auto r = b.get_child_optional("radio_status"))
+                printf("radio status %s: %s sent to the local side, last txbuf %s%%; %s from "
+                       "others dropped\n",
+                       b.get("name", "").c_str(), r->get("sent", "0").c_str(),
+                       r->get("last.txbuf", "-").c_str(), r->get("foreign", "0").c_str());
+        }
         for (const auto& [_, b] : bonds) {
             if (auto r = b.get_child_optional("renumber"))
                 printf("renumber %s: %s frames renumbered, %s gaps (lost on every link), %s filled "
@@ -255,6 +285,8 @@ void print_watch_block(const pt::ptree& doc, std::map<std::string, uint64_t>& pr
             }
             printf("\n");
         }
+        if (auto radio = e.get_child_optional("radio_status"))
+            printf("    radio %s\n", radio_line(*radio).c_str());
     }
     prev = std::move(now);
 }

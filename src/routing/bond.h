@@ -55,6 +55,14 @@ public:
         return !tx_active_ || active_link_ == kNoLink || active_link_ == to;
     }
 
+    /// Whether a member's radio reports for the bond (`radio_status`): then mavbond speaks
+    /// RADIO_STATUS for the bond, and any other RADIO_STATUS that comes in on a member (a far
+    /// side's relayed, another system's) is dropped and counted: ArduPilot honours a
+    /// RADIO_STATUS from any system and would slow for a report about some other link.
+    bool reports_radio_status = false;
+    /// RADIO_STATUS frames dropped so (not the radios' own, which their endpoints take).
+    uint64_t foreign_radio_status = 0;
+
     /// Whether the bond renumbers what it delivers (`renumber: true`).
     bool renumbers() const { return renumberer_ != nullptr; }
     /// Gives a frame of a member that the filters let through (`delivered`) its output

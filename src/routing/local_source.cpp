@@ -6,7 +6,6 @@
 #include "core/log.h"
 #include "mavlink/frame_parser.h"
 #include "mavlink/frame_writer.h"
-#include "routing/router.h"
 
 namespace mavbond {
 
@@ -45,21 +44,28 @@ void LocalSource::send_statustext(Severity severity, std::string_view text) {
     send(kMsgStatustext, payload.data(), payload.size());
 }
 
-void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len) {
+bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
+                        std::span<const uint8_t> payload, Router::Reach reach) {
     std::array<uint8_t, kMaxFrameLen> buf;
-    size_t n = write_frame_v2(buf, FrameSource{identity_.sysid, identity_.compid, seq_}, msgid,
-                              std::span<const uint8_t>(payload, len));
+    size_t n = write_frame_v2(buf, source, msgid, payload);
     // Parsed back like any received frame: the router gets a Frame as complete as theirs.
     ParserCounters counters;
     DatagramParser parser(std::span<const uint8_t>(buf.data(), n), UnknownIdPolicy::Drop, counters);
     Frame frame;
     if (n == 0 || !parser.next(frame)) {
         log_error("local frame msgid=%u could not be built", msgid);  // a bug, never input
-        return;
+        return false;
     }
+    router.inject(frame, reach);
+    return true;
+}
+
+void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len) {
+    if (!inject_local_frame(router_, FrameSource{identity_.sysid, identity_.compid, seq_}, msgid,
+                            std::span<const uint8_t>(payload, len), Router::Reach::Everywhere))
+        return;
     seq_++;
     frames_sent_++;
-    router_.inject(frame);
 }
 
 }  // namespace mavbond

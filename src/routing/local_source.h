@@ -5,14 +5,20 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <string_view>
 
 #include "config/config.h"
 #include "core/event_loop.h"
+#include "mavlink/frame_writer.h"
+#include "routing/router.h"
 
 namespace mavbond {
 
-class Router;
+/// Sends one frame mavbond makes itself, from `source`, through `router` to `reach`; false
+/// (logged) only on a bug (a payload the message table does not take).
+bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
+                        std::span<const uint8_t> payload, Router::Reach reach);
 
 /// MAV_SEVERITY values (MAVLink common.xml).
 enum class Severity : uint8_t {

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "core/log.h"
+#include "mavlink/radio_status.h"
 
 namespace mavbond {
 
@@ -274,9 +275,15 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
         if (!r.routed)
             continue;
         const FrameFilter::Ingress& v = verdicts_[i];
+        bool pass = v.pass;
+        if (pass && from.bond != kNoBond && is_radio_status(r.frame.msgid) &&
+            bonds_[from.bond].reports_radio_status) {
+            bonds_[from.bond].foreign_radio_status++;
+            pass = false;
+        }
         if (from.bond != kNoBond && bonds_[from.bond].renumbers())
-            bonds_[from.bond].renumber(r.frame, v.pass, v.bond_pos, r.arrival);
-        if (v.pass)
+            bonds_[from.bond].renumber(r.frame, pass, v.bond_pos, r.arrival);
+        if (pass)
             route(r);
     }
 }
@@ -336,12 +343,24 @@ void Router::route(const ReceivedFrame& received) {
         frames_without_destination_++;
 }
 
-void Router::inject(const Frame& frame) {
+void Router::inject(const Frame& frame, Reach reach) {
     for (Slot& to : slots_) {
-        if (to.link && bond_lets_send(to))
+        if (!to.link || (reach == Reach::OutsideBonds && to.bond != kNoBond))
+            continue;
+        if (bond_lets_send(to))
             deliver(frame, to);
     }
     end_batch();
+}
+
+void Router::mark_radio_status_bonds(const Config& config) {
+    for (Bond& b : bonds_) {
+        b.reports_radio_status = std::any_of(
+            config.endpoints.begin(), config.endpoints.end(), [&](const EndpointConfig& ep) {
+                return ep.bond == b.name() &&
+                       ep.tx_budget.radio_status != RadioStatusSource::None;
+            });
+    }
 }
 
 }  // namespace mavbond

@@ -77,11 +77,19 @@ public:
     /// The time up to which every frame that arrived has been handled: `now`, or earlier while
     /// a bond's frames wait for a socket still to be read.
     TimePoint arrival_clock(TimePoint now) const;
+    /// Where a frame mavbond made itself goes.
+    enum class Reach {
+        Everywhere,    // every link the bonds' tx policy lets send
+        OutsideBonds,  // the local side only: every link in no bond (a bond's RADIO_STATUS)
+    };
     /// Sends a frame mavbond made itself (its own HEARTBEAT, STATUSTEXT) as a local source:
-    /// to every link the bonds' tx policy lets send, through the egress filters; nothing is
-    /// learned and no ingress filter sees it. Flushes before returning, so the bytes need only
-    /// live for the call (call it from a timer, not from inside a receive batch).
-    void inject(const Frame& frame);
+    /// to the links `reach` names, through the egress filters; nothing is learned and no
+    /// ingress filter sees it. Flushes before returning, so the bytes need only live for the
+    /// call (call it from a timer, not from inside a receive batch).
+    void inject(const Frame& frame, Reach reach = Reach::Everywhere);
+    /// Marks the bonds whose members' radios report (`radio_status` on one of them): see
+    /// Bond::reports_radio_status. Called whenever the endpoints or the bonds change.
+    void mark_radio_status_bonds(const Config& config);
 
     /// Forgets routes not heard for route_timeout.
     void expire_routes(TimePoint now);

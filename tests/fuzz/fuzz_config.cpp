@@ -175,10 +175,13 @@ private:
     }
 
     /// A budget within its bounds, a UART's own rate only on a UART, and classes that are
-    /// sorted, apart, and capped only where telemetry is; no classes without a budget.
+    /// sorted, apart, and capped only where telemetry is; no classes without a budget; a
+    /// radio's reports only on a bond member with a budget for them to set.
     static void check_budget(const EndpointConfig& ep) {
         const char* name = ep.name.c_str();
         const TxBudgetConfig& b = ep.tx_budget;
+        FUZZ_CHECK(b.radio_status == RadioStatusSource::None || (b.enabled() && !ep.bond.empty()),
+                   "endpoint '%s': radio_status without a budget or a bond", name);
         if (!b.enabled()) {
             FUZZ_CHECK(b.classes == TxClassesConfig{}, "endpoint '%s': classes, no budget", name);
             return;

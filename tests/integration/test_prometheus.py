@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import HOST, REPO, free_port, status_document, udp_server
+from helpers import HOST, REPO, FrameMaker, free_port, status_document, uart, udp_server
 from synth import ardupilot_stream
 from test_metrics import DASHBOARD, scrape, tcp_port, value
 
@@ -28,7 +28,9 @@ SCRAPE_CONFIG = REPO / "conf" / "examples" / "prometheus-mavbond.yml"
 MANUAL = REPO / "conf" / "man" / "mavbond.8.in"
 # Series whose value moves between two reads of a quiet daemon: its clock, the age of its last
 # frame, and the HTTP endpoint's own counters (every scrape adds to them).
-MOVING = re.compile(r"^mavbond_(uptime_seconds|endpoint_last_rx_age_seconds|metrics_http_\w+)$")
+# A bond's RADIO_STATUS goes once a second while a member reports or hears: it is counted so.
+MOVING = re.compile(r"^mavbond_(uptime_seconds|endpoint_last_rx_age_seconds|metrics_http_\w+|"
+                    r"bond_radio_status_sent_total)$")
 
 pytestmark = pytest.mark.skipif(
     not Path(PROMETHEUS).is_file(),
@@ -145,23 +147,25 @@ class Prometheus:
         self.log.close()
 
 
-def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_path):
+def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_pair, tmp_path):
     """One vehicle's stream into a gateway with every kind of figure: a broadcast bond with
     dedup (by content) and renumbering, an active-link bond with linkswitch, stats over both, a
-    transmit budget on the GCS server. Once the traffic is over and Prometheus has scraped
+    transmit budget on the GCS server, a SiK radio on a UART that reports. Once the traffic is over and Prometheus has scraped
     again, each documented family is stored, each
     series Prometheus holds has the value /metrics serves, and the status socket's counters
     come back from PromQL unchanged."""
     ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "gcs")}
     m_port = tcp_port()
     status_path = tmp_path / "status.sock"
+    radio = pty_pair()
     g = lab.gateway([udp_server("a1", ports["a1"], bond="bonded"),
                      udp_server("a2", ports["a2"], bond="bonded"),
                      udp_server("b1", ports["b1"], bond="backup"),
                      udp_server("b2", ports["b2"], bond="backup"),
-                     udp_server("gcs", ports["gcs"], tx_rate="1MB/s")],
+                     udp_server("gcs", ports["gcs"], tx_rate="1MB/s"),
+                     uart("r1", radio.path, baud=57600, radio_status="sik", bond="radio")],
                     bonds=[{"name": "bonded", "tx": "broadcast", "renumber": True},
-                           {"name": "backup", "tx": "active"}],
+                           {"name": "backup", "tx": "active"}, {"name": "radio"}],
                     filters=[{"plugin": "dedup", "bonds": ["bonded"], "key": "content"},
                              {"plugin": "linkswitch", "bonds": ["backup"]},
                              {"plugin": "stats"}],
@@ -170,6 +174,8 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, tmp_p
     try:
         prom.wait_ready()
         src = lab.sock()
+        sik = FrameMaker(51, 68, v1=True)
+        radio.write_all(sik.pack(sik.mod.MAVLink_radio_status_message(150, 140, 95, 40, 35, 3, 1)))
         frames = [f for _, f in ardupilot_stream(2, seed=5)]
         for i, f in enumerate(frames):
             # every frame on both links of each bond, one in ten lost on a1 and on b2

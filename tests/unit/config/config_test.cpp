@@ -603,6 +603,20 @@ const BadCase kBadCases[] = {
     {"TxRateBaudOnUdp", GCS "    tx_rate: baud\n",
      "t.yaml:6:14: endpoint 'gcs': 'tx_rate': 'baud' takes a UART's own baudrate; give a "
      "udp server endpoint a rate such as 5kB/s or 57600baud"},
+    {"RadioStatusUnknown", GCS "    radio_status: 3dr\n",
+     "t.yaml:6:19: endpoint 'gcs': 'radio_status': '3dr' is not a radio mavbond knows (sik: a "
+     "SiK radio such as 3DR or RFD900, reporting as system 51, component 68)"},
+    {"RadioStatusOnServer", GCS "    radio_status: sik\n",
+     "t.yaml:6:19: endpoint 'gcs': 'radio_status' does not apply to a udp server endpoint "
+     "(each peer is a link of its own): give it to a UART or a client"},
+    {"RadioStatusUdpNoRate",
+     "endpoints:\n  - {name: r, type: udp, mode: client, address: 127.0.0.1:5, radio_status: sik}\n",
+     "t.yaml:2:76: endpoint 'r': 'radio_status' on a udp client endpoint needs 'tx_rate' "
+     "(the radio's rate, e.g. 57600baud)"},
+    {"RadioStatusNoBond",
+     "endpoints:\n  - {name: r, type: uart, device: /dev/ttyS0, radio_status: sik}\n",
+     "t.yaml:2:61: endpoint 'r': 'radio_status' needs the endpoint in a bond (the bond "
+     "reports to its local side; a bond of one link will do)"},
     {"TxRateOnTlog", "endpoints:\n  - {name: log, type: tlog, directory: /l, tx_rate: 5kB/s}\n",
      "t.yaml:2:44: endpoint 'log': key 'tx_rate' does not apply to a tlog endpoint"},
     {"TxClassesUnknownKey", GCS "tx_classes: {controll: [HEARTBEAT]}\n",
@@ -674,6 +688,35 @@ tx_classes:
     ASSERT_EQ(2u, c.caps.size());
     EXPECT_EQ(std::make_pair(30u, Duration(milliseconds(100))), c.caps[0]);
     EXPECT_EQ(std::make_pair(33u, Duration(seconds(2))), c.caps[1]);
+}
+
+TEST(ConfigParse, ARadiosReportsMakeABudget) {
+    auto config = parse(R"(
+endpoints:
+  - {name: radio, type: uart, device: /dev/ttyUSB0, baud: 57600, radio_status: sik, bond: v}
+  - {name: rfd, type: uart, device: /dev/ttyUSB1, baud: 57600, tx_rate: 4kB/s,
+     radio_status: sik, bond: v}
+  - {name: net, type: udp, mode: client, address: 127.0.0.1:14552, tx_rate: 57600baud,
+     radio_status: sik, bond: v}
+bonds:
+  - {name: v}
+)");
+    ASSERT_TRUE(config.has_value()) << config.error().message;
+    const auto& eps = config->endpoints;
+    for (const auto& ep : eps) {
+        EXPECT_EQ(RadioStatusSource::Sik, ep.tx_budget.radio_status) << ep.name;
+        EXPECT_TRUE(ep.tx_budget.enabled()) << ep.name;
+        EXPECT_FALSE(ep.tx_budget.classes.control.empty()) << ep.name << ": a budget's classes";
+    }
+    EXPECT_TRUE(eps[0].tx_budget.uart_baud) << "a UART without tx_rate: its baud is the ceiling";
+    EXPECT_FALSE(eps[1].tx_budget.uart_baud);
+    EXPECT_EQ(4000u, eps[1].tx_budget.bytes_per_s);
+    EXPECT_EQ(5760u, eps[2].tx_budget.bytes_per_s);
+    // A reload that changes only radio_status retunes the endpoint in place.
+    EndpointConfig plain = eps[1];
+    plain.tx_budget.radio_status = RadioStatusSource::None;
+    EXPECT_TRUE(same_but_budget(plain, eps[1]));
+    EXPECT_FALSE(same_settings(plain, eps[1]));
 }
 
 TEST(ConfigParse, WithoutTheSectionsMavbondSaysNothingOfItsOwn) {

@@ -78,6 +78,12 @@ public:
             record(at, m.frame.bytes);
         due_ = std::min(due_, release(at));
     }
+    /// A new rate from `at` on (a radio's report), as Endpoint::apply_radio_rate sets it.
+    void set_rate(uint64_t rate, TimePoint at) {
+        run_until(at);
+        budget.set_rate(rate, at);
+        due_ = release(at);
+    }
     /// Releases what is due up to `t`.
     void run_until(TimePoint t) {
         while (due_ <= t) {
@@ -319,6 +325,41 @@ TEST(TxBudgetTest, SourcesAreThinnedApart) {
     EXPECT_EQ(199, last[1]);
     EXPECT_EQ(199, last[2]);
     EXPECT_LE(std::abs(count[1] - count[2]), 1);
+}
+
+TEST(TxBudgetTest, ARateSetMidStreamHoldsFromThenOn) {
+    // 5760 B/s, then a radio's report halves it at 5 s, then raises it back at 10 s: each
+    // stretch carries its own rate (within a burst), the telemetry held across a change
+    // included, and none is lost but what thinning replaced.
+    Line line(5760, classes());
+    const int fps = 250;  // 40-byte frames: 10 kB/s offered, more than either rate
+    for (int i = 0; i < 15 * fps; i++) {
+        TimePoint at = t0 + ms(1000.0 * i / fps);
+        if (i == 5 * fps)
+            line.set_rate(2880, at);
+        if (i == 10 * fps)
+            line.set_rate(5760, at);
+        line.offer(make(id("ATTITUDE"), static_cast<uint16_t>(i), 28,
+                        static_cast<uint8_t>(1 + i % 8)), at);
+    }
+    line.run_until(t0 + seconds(16));
+    auto bytes_between = [&](double from_s, double to_s) {
+        size_t n = 0;
+        for (const Out& o : line.out)
+            n += o.at >= t0 + ms(1000 * from_s) && o.at < t0 + ms(1000 * to_s) ? o.len : 0;
+        return static_cast<double>(n);
+    };
+    const double burst = kMaxFrameLen;
+    EXPECT_LE(bytes_between(0, 5), 5760 * 5 + burst);
+    EXPECT_GE(bytes_between(0, 5), 5760 * 5 - burst);
+    EXPECT_LE(bytes_between(5, 10), 2880 * 5 + burst);
+    EXPECT_GE(bytes_between(5, 10), 2880 * 5 - 2 * burst);
+    EXPECT_LE(bytes_between(10, 15), 5760 * 5 + burst);
+    EXPECT_GE(bytes_between(10, 15), 5760 * 5 - 2 * burst);
+    const auto& k = line.budget.counters(TxClass::Telemetry);
+    EXPECT_EQ(static_cast<uint64_t>(15 * fps), k.frames + k.thinned);
+    EXPECT_EQ(0u, k.dropped);
+    EXPECT_FALSE(line.budget.holding());
 }
 
 }  // namespace

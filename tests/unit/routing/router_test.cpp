@@ -169,7 +169,8 @@ TEST_F(RouterTest, DetachedLinkGetsNothingAndItsIdIsReused) {
 class BondRouterTest : public RouterTest {
 protected:
     void SetUp() override {}
-    void make(BondConfig::Tx tx) {
+    /// `radio_reports`: the radio has `radio_status: sik`.
+    void make(BondConfig::Tx tx, bool radio_reports = false) {
         Config config;
         config.bonds = {BondConfig{"vehicle", tx, {}}};
         for (auto [name, bond] : {std::pair{"radio", "vehicle"}, {"lte", "vehicle"}, {"gcs", ""}}) {
@@ -179,7 +180,15 @@ protected:
             links_.push_back(std::make_unique<RecordingLink>(name, bond));
             router_.attach(*links_.back());
         }
+        if (radio_reports)
+            config.endpoints[0].tx_budget.radio_status = RadioStatusSource::Sik;
         router_.replace_bonds(config);
+        router_.mark_radio_status_bonds(config);
+    }
+    Frame radio_status(uint8_t sysid, uint8_t compid, uint32_t msgid = 109) {
+        Frame f = frame(sysid, compid);
+        f.msgid = msgid;
+        return f;
     }
     RecordingLink& radio() { return *links_[0]; }
     RecordingLink& lte() { return *links_[1]; }
@@ -237,6 +246,43 @@ TEST_F(BondRouterTest, InjectedFrameGoesEverywhereTheTxPolicyAllows) {
     EXPECT_EQ(1u, radio().sent.size());
     EXPECT_EQ(0u, lte().sent.size());
     EXPECT_EQ(1u, ground().sent.size());
+}
+
+TEST_F(BondRouterTest, ABondWhoseRadioReportsDropsEveryOtherRadioStatus) {
+    make(BondConfig::Tx::Broadcast, true);
+    ASSERT_TRUE(router_.bonds()[0].reports_radio_status);
+    receive(lte(), radio_status(51, 68));        // the far side's radio, over the bond
+    receive(radio(), radio_status(52, 68));      // another system on the radio's line
+    receive(radio(), radio_status(51, 68, 166)); // RADIO, the older twin (the endpoint takes
+                                                 // its radio's own before routing sees them)
+    EXPECT_EQ(0u, ground().sent.size());
+    EXPECT_EQ(3u, router_.bonds()[0].foreign_radio_status);
+    receive(lte(), frame(1, 1));                 // anything else goes on
+    EXPECT_EQ(1u, ground().sent.size());
+    // From the local side: routed like any frame, not the bond's to judge.
+    receive(ground(), radio_status(51, 68));
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size());
+    EXPECT_EQ(3u, router_.bonds()[0].foreign_radio_status);
+}
+
+TEST_F(BondRouterTest, ABondWithoutReportsForwardsRadioStatus) {
+    make(BondConfig::Tx::Broadcast);
+    receive(radio(), radio_status(51, 68));
+    EXPECT_EQ(1u, ground().sent.size());
+    EXPECT_EQ(0u, router_.bonds()[0].foreign_radio_status);
+}
+
+TEST_F(BondRouterTest, AFrameMadeForTheLocalSideStaysOutOfTheBonds) {
+    make(BondConfig::Tx::Broadcast, true);
+    router_.inject(radio_status(51, 68), Router::Reach::OutsideBonds);
+    EXPECT_EQ(1u, ground().sent.size());
+    EXPECT_EQ(0u, radio().sent.size());
+    EXPECT_EQ(0u, lte().sent.size());
+    router_.inject(frame(1, 191), Router::Reach::Everywhere);
+    EXPECT_EQ(2u, ground().sent.size());
+    EXPECT_EQ(1u, radio().sent.size());
+    EXPECT_EQ(1u, lte().sent.size());
 }
 
 }  // namespace
