@@ -76,12 +76,17 @@ void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arriv
     batch.add(frame, *this, arrival, accepted);
 }
 
-void Endpoint::receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
-                                TimePoint arrival, UnknownIdPolicy policy) {
+Endpoint::FrameOrigin Endpoint::receive_datagram(ReceivedBatch& batch,
+                                                 std::span<const uint8_t> datagram,
+                                                 TimePoint arrival, UnknownIdPolicy policy) {
     DatagramParser parser(datagram, policy, stats_.rx);
     Frame frame;
-    while (parser.next(frame))
+    FrameOrigin last;
+    while (parser.next(frame)) {
         receive(batch, frame, arrival);
+        last = FrameOrigin{true, frame.sysid, frame.compid, frame.seq};
+    }
+    return last;
 }
 
 bool Endpoint::authentic(const Frame& frame) {
