@@ -825,3 +825,45 @@ TEST(ConfigParse, StrayTokenRefused) {
               config.error().message);
 }
 }  // namespace mavbond
+
+namespace mavbond {
+namespace {
+
+TEST(HostPort, ReadsEveryFormAnAddressIsWrittenIn) {
+    struct Case {
+        const char* text;
+        const char* host;
+        uint16_t port;
+    };
+    const Case cases[] = {
+        {"192.0.2.1:14550", "192.0.2.1", 14550},
+        {"0.0.0.0:1", "0.0.0.0", 1},
+        {"localhost:5760", "127.0.0.1", 5760},
+        {"[::1]:14550", "::1", 14550},
+        {"[::]:14550", "::", 14550},
+        {"[2001:db8::5]:65535", "2001:db8::5", 65535},
+        {"[::ffff:192.0.2.1]:9", "::ffff:192.0.2.1", 9},
+        {"lte.example.net:14550", "lte.example.net", 14550},
+        {"lte.example.net.:14550", "lte.example.net.", 14550},
+        {"ip6-localhost:1", "ip6-localhost", 1},
+        {"a1-b2.c3:2", "a1-b2.c3", 2},
+    };
+    for (const Case& c : cases) {
+        HostPort hp = parse_host_port(c.text);
+        EXPECT_EQ("", hp.error) << c.text;
+        EXPECT_EQ(c.host, hp.host) << c.text;
+        EXPECT_EQ(c.port, hp.port) << c.text;
+    }
+}
+
+TEST(HostPort, RefusesWhatNoResolverTakes) {
+    const char* bad[] = {"",         ":14550",        "[::1]",        "[::1]14550", "[::1:14550",
+                         "::1:14550", "[fe80::zz]:1", "1.2.3:14550",  "1.2.3.4.5:1", "-a.net:1",
+                         "a-.net:1",  "a..net:1",     "a_b.net:1",    "a.net:0",     "a.net:65536",
+                         "a.net:x",   "a.net:-1",     "[a.net]:1"};
+    for (const char* text : bad)
+        EXPECT_NE("", parse_host_port(text).error) << "'" << text << "'";
+}
+
+}  // namespace
+}  // namespace mavbond
