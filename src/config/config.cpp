@@ -723,6 +723,9 @@ OptionValue Parser::endpoint_option(const EndpointOption& option, const Entry& e
 }
 
 OptionValue Parser::parse_address(const Entry& e, const std::string& ctx) const {
+    if (e.value.IsSequence())
+        fail(value_mark(e), ctx + "'address' is a list: an IPv6 address in brackets is quoted in "
+                                  "YAML (address: \"[::1]:14550\")");
     HostPort hp = parse_host_port(scalar(e, ctx));
     if (!hp.error.empty())
         fail(value_mark(e), ctx + "'address': " + hp.error);
@@ -1289,6 +1292,32 @@ const OptionValue& EndpointOptions::at(std::string_view key) const {
     return it == values_.end() ? kAbsent : it->second;
 }
 
+namespace {
+
+/// YAML reads `address: [::1]:14550` as a list and then fails on what follows: when the line
+/// of a YAML error holds a bracketed address and port, say how to write one.
+std::string unquoted_ipv6_hint(const std::string& text, const YAML::Mark& mark) {
+    if (mark.line < 0)
+        return "";
+    size_t begin = 0;
+    for (int line = 0; line < mark.line && begin != std::string::npos; line++) {
+        begin = text.find('\n', begin);
+        if (begin != std::string::npos)
+            begin++;
+    }
+    if (begin == std::string::npos)
+        return "";
+    std::string_view line(text.c_str() + begin, text.find('\n', begin) == std::string::npos
+                                                     ? text.size() - begin
+                                                     : text.find('\n', begin) - begin);
+    auto open = line.find('[');
+    if (open == std::string_view::npos || line.find("]:", open) == std::string_view::npos)
+        return "";
+    return " (an IPv6 address in brackets is quoted in YAML: address: \"[::1]:14550\")";
+}
+
+}  // namespace
+
 Result<Config> parse_config(const std::string& text, const std::string& name,
                             EndpointSchemas types) {
     if (auto error = control_character_error(text, name))
@@ -1301,7 +1330,7 @@ Result<Config> parse_config(const std::string& text, const std::string& name,
     } catch (const ConfigError& e) {
         return make_error(e.message);
     } catch (const YAML::Exception& e) {
-        return make_error(format_at(name, e.mark, e.msg));
+        return make_error(format_at(name, e.mark, e.msg + unquoted_ipv6_hint(text, e.mark)));
     } catch (const std::exception& e) {
         return make_error(format_at(name, YAML::Mark::null_mark(), e.what()));
     }

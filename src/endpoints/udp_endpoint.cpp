@@ -138,6 +138,19 @@ int UdpPeer::write_datagrams(const iovec* frames, size_t count) {
 
 void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 
+void UdpPeer::heard_from(const FrameOrigin& origin) {
+    if (!origin.known)
+        return;
+    for (FrameOrigin& o : recent_) {
+        if (o.known && o.sysid == origin.sysid && o.compid == origin.compid) {
+            o.seq = origin.seq;
+            return;
+        }
+    }
+    recent_[next_recent_] = origin;
+    next_recent_ = (next_recent_ + 1) % kRecentOrigins;
+}
+
 // --- UdpServer -----------------------------------------------------------------------------
 
 Result<std::unique_ptr<UdpServer>> UdpServer::open(const EndpointConfig& config, EventLoop& loop,
@@ -224,17 +237,19 @@ UdpPeer* UdpServer::rebound_from(const UdpPeer& fresh) const {
     // of those, and two senders of one system and component (a misconfiguration) rarely
     // line up within it.
     constexpr unsigned kSeqWindow = 64;
-    const FrameOrigin& now = fresh.last_origin();
+    const FrameOrigin& now = fresh.recent_origins()[0];  // what its first datagram ended with
     if (!now.known)
         return nullptr;
     for (const auto& peer : peers_) {
-        const FrameOrigin& was = peer->last_origin();
-        if (peer.get() == &fresh || peer->rebound() || !was.known || was.sysid != now.sysid ||
-            was.compid != now.compid)
+        if (peer.get() == &fresh || peer->rebound())
             continue;
-        unsigned ahead = static_cast<uint8_t>(now.seq - was.seq);
-        if (ahead >= 1 && ahead <= kSeqWindow)
-            return peer.get();
+        for (const FrameOrigin& was : peer->recent_origins()) {
+            if (!was.known || was.sysid != now.sysid || was.compid != now.compid)
+                continue;
+            unsigned ahead = static_cast<uint8_t>(now.seq - was.seq);
+            if (ahead >= 1 && ahead <= kSeqWindow)
+                return peer.get();
+        }
     }
     return nullptr;
 }
@@ -297,7 +312,7 @@ void UdpServer::on_events(uint32_t events) {
             continue;
         }
         peer->heard(arrival);
-        peer->set_last_origin(peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_));
+        peer->heard_from(peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_));
         if (is_new) {
             if (UdpPeer* old = rebound_from(*peer)) {
                 log_notice("[udp:%s] peer %s now at %s (a NAT rebinding): the old address is "

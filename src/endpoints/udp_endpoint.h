@@ -75,12 +75,11 @@ public:
     const SocketAddress& address() const { return addr_; }
     TimePoint last_heard() const { return last_heard_; }
     void heard(TimePoint now) { last_heard_ = now; }
-    /// The origin of the last frame it sent (what a rebinding is recognised by).
-    const FrameOrigin& last_origin() const { return last_origin_; }
-    void set_last_origin(const FrameOrigin& origin) {
-        if (origin.known)
-            last_origin_ = origin;
-    }
+    /// The last frame of each of the last few components it carried (a vehicle's autopilot,
+    /// camera, ...): what a rebinding is recognised by.
+    static constexpr size_t kRecentOrigins = 4;
+    const std::array<FrameOrigin, kRecentOrigins>& recent_origins() const { return recent_; }
+    void heard_from(const FrameOrigin& origin);
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
@@ -90,7 +89,8 @@ private:
     UdpServer& server_;
     SocketAddress addr_;
     TimePoint last_heard_;
-    FrameOrigin last_origin_;
+    std::array<FrameOrigin, kRecentOrigins> recent_{};
+    size_t next_recent_ = 0;  // the slot a new component takes (round robin)
     bool rebound_ = false;
 };
 
