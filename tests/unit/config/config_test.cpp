@@ -499,6 +499,9 @@ const BadCase kBadCases[] = {
      "([::1]:port)"},
     {"BadIpv6", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::g]:14550'}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': '[::g]' is not an IPv6 address"},
+    {"Ipv6Unquoted", "endpoints:\n  - name: gcs\n    type: udp\n    mode: server\n    address: [::1]:14550\n",
+     "t.yaml:5:19: end of map not found (an IPv6 address in brackets is quoted in YAML: "
+     "address: \"[::1]:14550\")"},
     {"Ipv6NoPort", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::1]'}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': '[::1]' needs a port after the brackets "
      "([::1]:14550)"},
