@@ -313,12 +313,20 @@ void UdpServer::on_events(uint32_t events) {
         }
         peer->heard(arrival);
         peer->heard_from(peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_));
-        if (is_new) {
-            if (UdpPeer* old = rebound_from(*peer)) {
+        if (is_new && detect_rebinding_) {
+            if (std::any_of(rebound_from_.begin(), rebound_from_.end(),
+                            [&](const SocketAddress& a) { return same_address(a, peer->address()); })) {
+                log_warning("[udp:%s] peer %s sends again after it was taken as rebound: two live "
+                            "paths of one system, not a NAT rebinding; rebinding detection is off "
+                            "for this endpoint", name().c_str(), to_string(peer->address()).c_str());
+                detect_rebinding_ = false;
+            } else if (UdpPeer* old = rebound_from(*peer)) {
                 log_notice("[udp:%s] peer %s now at %s (a NAT rebinding): the old address is "
                            "forgotten", name().c_str(), to_string(old->address()).c_str(),
                            to_string(peer->address()).c_str());
                 stats_.peer_rebinds++;
+                rebound_from_[next_rebound_] = old->address();
+                next_rebound_ = (next_rebound_ + 1) % rebound_from_.size();
                 // Nothing more goes to the old address, from this round on. It is forgotten
                 // once the round has routed what it received (a bond may hold its frames).
                 old->mark_rebound();

@@ -132,6 +132,11 @@ private:
     ReceivedBatch frames_{sink_, &input_};
     std::vector<std::unique_ptr<UdpPeer>> peers_;
     UdpPeer* last_peer_ = nullptr;  // the peer the last datagram came from
+    // Addresses forgotten as rebound: one that sends again was a second live path of one
+    // system (two modems to one port), not a NAT rebinding, and the detection stops.
+    std::array<SocketAddress, 4> rebound_from_{};
+    size_t next_rebound_ = 0;
+    bool detect_rebinding_ = true;
     LinkCounters retired_;      // counters of forgotten peers, so totals never go back
     uint64_t refused_peers_ = 0;
 };

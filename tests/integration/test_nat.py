@@ -242,6 +242,38 @@ def test_nat_rebinding_mid_stream_loses_only_what_was_in_flight(start_daemon):
         gcs.close()
 
 
+def test_two_live_paths_of_one_system_are_not_taken_for_a_rebinding(start_daemon):
+    """Two modems of one vehicle sending the same stream to one ground port: the second path's
+    first frame may run ahead of the first's and look like a rebinding. When the address taken
+    as rebound sends again, the daemon says so, stops detecting rebindings on that endpoint and
+    keeps both paths: frames from the GCS reach both."""
+    lte_port, gcs_port = free_port(), free_port()
+    d = start_daemon([udp_server("lte", lte_port), udp_server("gcs", gcs_port)])
+    path_a, path_b, gcs = udp4(), udp4(), udp4()
+    vehicle = Codec(*AUTOPILOT)
+    try:
+        frames = [vehicle.numbered("ap", n) for n in range(12)]
+        gcs.sendto(Codec(*GCS).heartbeat(), (HOST, gcs_port))
+        d.wait_log(r"\[udp:gcs\] new peer")
+        for f in frames[:10]:
+            path_a.sendto(f, (HOST, lte_port))
+        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{path_a.getsockname()[1]}")
+        path_b.sendto(frames[10], (HOST, lte_port))  # the faster path's copy of frame 10
+        d.wait_log(r"now at .* \(a NAT rebinding\)")
+        path_a.sendto(frames[10], (HOST, lte_port))  # the slower path's copy: it is alive
+        d.wait_log(rf"peer 127\.0\.0\.1:{path_a.getsockname()[1]} sends again after it was "
+                   r"taken as rebound: two live paths")
+        path_b.sendto(frames[11], (HOST, lte_port))
+        path_a.sendto(frames[11], (HOST, lte_port))
+        gcs.sendto(Codec(*GCS).numbered("gcs", 7), (HOST, gcs_port))
+        assert collect(path_a, Codec(), "gcs", 1, []) == [7]
+        assert collect(path_b, Codec(), "gcs", 1, []) == [7]
+        assert d.log().count("(a NAT rebinding)") == 1, "detection is off after the warning"
+    finally:
+        for s in (path_a, path_b, gcs):
+            s.close()
+
+
 # --- IPv6 -------------------------------------------------------------------------------------
 
 def test_ipv6_udp_and_tcp_endpoints_with_pymavlink(start_daemon):
