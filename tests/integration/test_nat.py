@@ -389,8 +389,12 @@ def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
     resolves."""
     hosts = HostsFile(tmp_path / "hosts")
     hosts.set({"lte.test": "127.0.0.1"})
-    src_port, lte_port, tcp_port, late_port = (v6_and_v4_port() for _ in range(4))
+    src_port, lte_port, tcp_port, late_port, late_tcp_port = (v6_and_v4_port() for _ in range(5))
     old_udp, new_udp, late_udp = udp4(lte_port), udp6(lte_port), udp4(late_port)
+    late_tcp = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    late_tcp.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    late_tcp.bind((HOST, late_tcp_port))
+    late_tcp.listen(1)
     old_tcp = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     new_tcp = socket.socket(socket.AF_INET6, socket.SOCK_STREAM)
     for s, addr in ((old_tcp, HOST), (new_tcp, "::1")):
@@ -405,6 +409,8 @@ def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
          "resolve_interval": "300ms", "reconnect_min": "100ms", "reconnect_max": "200ms"},
         {"name": "late", "type": "udp", "mode": "client", "address": f"late.test:{late_port}",
          "reconnect_min": "100ms", "reconnect_max": "200ms"},
+        {"name": "tlate", "type": "tcp", "mode": "client", "address": f"late.test:{late_tcp_port}",
+         "reconnect_min": "100ms", "reconnect_max": "200ms"},
     ], name="dyn")
     src = udp4()
     codec = Codec(*GCS)
@@ -416,7 +422,15 @@ def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
         conns.append(conn)
         d.wait_log(r"\[tcp:tlte\] connected to 127\.0\.0\.1:")
         d.wait_log(r"\[udp:late\] cannot resolve 'late\.test'")
-        assert d.stats()["late"]["resolve_failures"] >= 1
+        d.wait_log(r"\[tcp:tlate\] cannot resolve 'late\.test'")
+        # Not fatal: the daemon routes on, the lookups go on with backoff, counted; what is
+        # routed to a link whose name has not resolved is dropped and counted.
+        src.sendto(codec.numbered("early", 1), (HOST, src_port))
+        d.wait_log(r"\[udp:late\] cannot resolve", count=1)
+        early = d.settle_stats(lambda st: st["late"]["tx_dropped"])
+        assert early["late"]["resolve_failures"] >= 1 and early["tlate"]["resolve_failures"] >= 1
+        assert early["late"]["tx_dropped"] >= 1
+        assert d.log().count("cannot resolve 'late.test'") == 2, "logged once per endpoint"
 
         sent = 0
 
@@ -451,8 +465,12 @@ def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
         # The name missing at start resolves now: it is used.
         d.wait_log(rf"\[udp:late\] late\.test resolves again")
         d.wait_log(rf"\[udp:late\] sending to 127\.0\.0\.1:{late_port} \(late\.test\)")
+        late_conn, _ = late_tcp.accept()
+        conns.append(late_conn)
+        d.wait_log(rf"\[tcp:tlate\] connected to 127\.0\.0\.1:{late_tcp_port}")
         src.sendto(codec.numbered("late", 1), (HOST, src_port))
         assert collect(late_udp, Codec(), "late", 1, []) == [1]
+        assert collect(late_conn, Codec(), "late", 1, []) == [1]
         stats = d.stats()
         # Looked up every 300 ms all along: the change is logged and counted once.
         assert d.log().count("[udp:lte] lte.test now") == 1, "a change is logged once"
@@ -461,5 +479,5 @@ def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
         assert stats["late"]["address_changes"] == 0
     finally:
         d.kill()
-        for s in (src, old_udp, new_udp, late_udp, old_tcp, new_tcp, *conns):
+        for s in (src, old_udp, new_udp, late_udp, old_tcp, new_tcp, late_tcp, *conns):
             s.close()
