@@ -66,14 +66,15 @@ void Endpoint::defer(EventLoop& loop, std::function<void()> fn) {
     });
 }
 
-void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
+bool Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
     stats_.last_rx = arrival;
     if (verifier_ && !authentic(frame))
-        return;
+        return false;
     bool accepted = filter_in_.empty() || filter_in_.passes(frame.msgid);
     if (!accepted)
         stats_.rx_filtered++;
     batch.add(frame, *this, arrival, accepted);
+    return true;
 }
 
 Endpoint::FrameOrigin Endpoint::receive_datagram(ReceivedBatch& batch,
@@ -83,8 +84,9 @@ Endpoint::FrameOrigin Endpoint::receive_datagram(ReceivedBatch& batch,
     Frame frame;
     FrameOrigin last;
     while (parser.next(frame)) {
-        receive(batch, frame, arrival);
-        last = FrameOrigin{true, frame.sysid, frame.compid, frame.seq};
+        // A frame signing refuses says nothing about who sent it (it may be forged).
+        if (receive(batch, frame, arrival))
+            last = FrameOrigin{true, frame.sysid, frame.compid, frame.seq};
     }
     return last;
 }

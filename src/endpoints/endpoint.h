@@ -71,7 +71,7 @@ public:
         uint8_t sysid = 0, compid = 0, seq = 0;
     };
     /// Parses a datagram this link received and puts its frames into `batch` (receive());
-    /// returns the origin of its last frame.
+    /// returns the origin of its last frame that signing let in.
     FrameOrigin receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
                                  TimePoint arrival, UnknownIdPolicy policy);
 
@@ -109,8 +109,8 @@ protected:
 
     /// A frame this link received, on its way into `batch`: dropped here (counted) when its
     /// signature does not let it in; routing only learns from it when allow_in/block_in
-    /// refuse it.
-    void receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival);
+    /// refuse it. False when signing refused it.
+    bool receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival);
     /// Drops everything queued (reconnects start at a frame boundary), counting it.
     void clear_tx();
     /// Runs `fn` after this dispatch round, unless the endpoint is gone by then (a reload may

@@ -274,6 +274,49 @@ def test_two_live_paths_of_one_system_are_not_taken_for_a_rebinding(start_daemon
             s.close()
 
 
+def test_a_forged_frame_from_a_new_address_is_no_rebinding(mavbond_bin, tmp_path):
+    """With signing required, an unsigned frame that carries on the vehicle's stream (its ids,
+    the next sequence number) from another address does not take the vehicle's place; the
+    vehicle's own signed frames from a new address do."""
+    key = os.urandom(32)
+    key_file = tmp_path / "lte.key"
+    key_file.write_text(key.hex() + "\n")
+    key_file.chmod(0o600)
+    lte_port, gcs_port = free_port(), free_port()
+    config = (f"endpoints:\n"
+              f"  - name: lte\n    type: udp\n    mode: server\n    address: {HOST}:{lte_port}\n"
+              f"    signing: {{key_file: {key_file}, require: true}}\n"
+              f"  - {{name: gcs, type: udp, mode: server, address: {HOST}:{gcs_port}}}\n")
+    d = Daemon(mavbond_bin, tmp_path, config, name="signed").start()
+    first, second, forger, gcs = udp4(), udp4(), udp4(), udp4()
+    vehicle, forged = Codec(*AUTOPILOT), Codec(*AUTOPILOT)
+    vehicle.mav.signing.secret_key = key
+    vehicle.mav.signing.link_id = 1
+    vehicle.mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
+    vehicle.mav.signing.sign_outgoing = True
+    try:
+        gcs.sendto(Codec(*GCS).heartbeat(), (HOST, gcs_port))
+        d.wait_log(r"\[udp:gcs\] new peer")
+        for n in range(5):
+            first.sendto(vehicle.numbered("ap", n), (HOST, lte_port))
+        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{first.getsockname()[1]}")
+        forged.mav.seq = vehicle.mav.seq  # the vehicle's next sequence number, unsigned
+        forger.sendto(forged.numbered("ap", 99), (HOST, lte_port))
+        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{forger.getsockname()[1]}")
+        gcs.sendto(Codec(*GCS).numbered("gcs", 1), (HOST, gcs_port))
+        assert collect(first, Codec(), "gcs", 1, []) == [1], "the vehicle keeps its place"
+        assert collect(gcs, Codec(), "ap", 5, []) == list(range(5)), "the forged frame is dropped"
+        second.sendto(vehicle.numbered("ap", 5), (HOST, lte_port))
+        d.wait_log(rf"peer 127\.0\.0\.1:{first.getsockname()[1]} now at "
+                   rf"127\.0\.0\.1:{second.getsockname()[1]} \(a NAT rebinding\)")
+        stats = d.stats()
+        assert stats["lte"]["peer_rebinds"] == 1 and stats["lte"]["sig_unsigned"] == 1
+    finally:
+        d.kill()
+        for s in (first, second, forger, gcs):
+            s.close()
+
+
 # --- IPv6 -------------------------------------------------------------------------------------
 
 def test_ipv6_udp_and_tcp_endpoints_with_pymavlink(start_daemon):
