@@ -732,26 +732,15 @@ OptionValue Parser::endpoint_option(const EndpointOption& option, const Entry& e
 }
 
 OptionValue Parser::parse_address(const Entry& e, const std::string& ctx) const {
-    const std::string& text = scalar(e, ctx);
-    std::string where = ctx + "'address': ";
-    auto colon = text.rfind(':');
-    if (colon == std::string::npos)
-        fail(value_mark(e), where + "'" + text + "' needs host:port (e.g. 0.0.0.0:14550)");
-    std::string host = text.substr(0, colon);
-    std::string port_text = text.substr(colon + 1);
-    in_addr addr{};
-    if (host == "localhost") {
-        host = "127.0.0.1";
-    } else if (inet_pton(AF_INET, host.c_str(), &addr) != 1) {
-        fail(value_mark(e), where + "host '" + host +
-                                "' is not an IPv4 address (a.b.c.d) or 'localhost'");
-    }
-    auto port = parse_u64(port_text);
-    if (!port || *port < 1 || *port > 65535)
-        fail(value_mark(e), where + "port '" + port_text + "' is not in 1..65535");
+    if (e.value.IsSequence())
+        fail(value_mark(e), ctx + "'address' is a list: an IPv6 address in brackets is quoted in "
+                                  "YAML (address: \"[::1]:14550\")");
+    HostPort hp = parse_host_port(scalar(e, ctx));
+    if (!hp.error.empty())
+        fail(value_mark(e), ctx + "'address': " + hp.error);
     OptionValue v;
-    v.text = host;
-    v.port = static_cast<uint16_t>(*port);
+    v.text = std::move(hp.host);
+    v.port = hp.port;
     return v;
 }
 
@@ -1087,6 +1076,83 @@ std::string format_at(const std::string& name, const YAML::Mark& mark, const std
 
 }  // namespace
 
+/// A DNS name as a resolver takes it: dot-separated labels of letters, digits and hyphens
+/// (not at a label's ends), each 1 to 63 characters, 253 in all; a final dot allowed.
+static bool is_host_name(std::string_view name) {
+    if (name.ends_with('.'))
+        name.remove_suffix(1);
+    if (name.empty() || name.size() > 253)
+        return false;
+    size_t label = 0;
+    for (size_t i = 0; i <= name.size(); i++) {
+        if (i == name.size() || name[i] == '.') {
+            if (label == 0 || label > 63 || name[i - 1] == '-' || name[i - label] == '-')
+                return false;
+            label = 0;
+        } else if (std::isalnum(static_cast<unsigned char>(name[i])) || name[i] == '-') {
+            label++;
+        } else {
+            return false;
+        }
+    }
+    return true;
+}
+
+HostPort parse_host_port(std::string_view text) {
+    HostPort out;
+    std::string_view host, port_text;
+    if (text.starts_with('[')) {
+        auto close = text.find(']');
+        if (close == std::string_view::npos) {
+            out.error = "'" + std::string(text) + "' has no ']' after the IPv6 address";
+            return out;
+        }
+        host = text.substr(1, close - 1);
+        std::string_view rest = text.substr(close + 1);
+        if (!rest.starts_with(':')) {
+            out.error = "'" + std::string(text) + "' needs a port after the brackets ([::1]:14550)";
+            return out;
+        }
+        port_text = rest.substr(1);
+        in6_addr v6{};
+        if (inet_pton(AF_INET6, std::string(host).c_str(), &v6) != 1) {
+            out.error = "'[" + std::string(host) + "]' is not an IPv6 address";
+            return out;
+        }
+    } else {
+        auto colon = text.rfind(':');
+        if (colon == std::string_view::npos) {
+            out.error = "'" + std::string(text) +
+                        "' needs host:port (e.g. 0.0.0.0:14550, [::1]:14550, "
+                        "lte.example.net:14550)";
+            return out;
+        }
+        host = text.substr(0, colon);
+        port_text = text.substr(colon + 1);
+        in_addr v4{};
+        std::string h(host);
+        if (host.find(':') != std::string_view::npos) {
+            out.error = "host '" + h + "': an IPv6 address is written in brackets ([" + h +
+                        "]:port)";
+            return out;
+        }
+        bool looks_numeric = !h.empty() && h.find_first_not_of("0123456789.") == std::string::npos;
+        if (looks_numeric ? inet_pton(AF_INET, h.c_str(), &v4) != 1 : !is_host_name(h)) {
+            out.error = "host '" + h + "' is not an IPv4 address (a.b.c.d), an IPv6 address in " +
+                        "brackets or a host name";
+            return out;
+        }
+    }
+    auto port = parse_u64(port_text);
+    if (!port || *port < 1 || *port > 65535) {
+        out.error = "port '" + std::string(port_text) + "' is not in 1..65535";
+        return out;
+    }
+    out.host = host == "localhost" ? "127.0.0.1" : std::string(host);
+    out.port = static_cast<uint16_t>(*port);
+    return out;
+}
+
 std::optional<Duration> parse_duration(std::string_view text) {
     size_t i = 0;
     uint64_t whole = 0;
@@ -1264,6 +1330,32 @@ const OptionValue& EndpointOptions::at(std::string_view key) const {
     return it == values_.end() ? kAbsent : it->second;
 }
 
+namespace {
+
+/// YAML reads `address: [::1]:14550` as a list and then fails on what follows: when the line
+/// of a YAML error holds a bracketed address and port, say how to write one.
+std::string unquoted_ipv6_hint(const std::string& text, const YAML::Mark& mark) {
+    if (mark.line < 0)
+        return "";
+    size_t begin = 0;
+    for (int line = 0; line < mark.line && begin != std::string::npos; line++) {
+        begin = text.find('\n', begin);
+        if (begin != std::string::npos)
+            begin++;
+    }
+    if (begin == std::string::npos)
+        return "";
+    std::string_view line(text.c_str() + begin, text.find('\n', begin) == std::string::npos
+                                                     ? text.size() - begin
+                                                     : text.find('\n', begin) - begin);
+    auto open = line.find('[');
+    if (open == std::string_view::npos || line.find("]:", open) == std::string_view::npos)
+        return "";
+    return " (an IPv6 address in brackets is quoted in YAML: address: \"[::1]:14550\")";
+}
+
+}  // namespace
+
 Result<Config> parse_config(const std::string& text, const std::string& name,
                             EndpointSchemas types) {
     if (auto error = control_character_error(text, name))
@@ -1276,7 +1368,7 @@ Result<Config> parse_config(const std::string& text, const std::string& name,
     } catch (const ConfigError& e) {
         return make_error(e.message);
     } catch (const YAML::Exception& e) {
-        return make_error(format_at(name, e.mark, e.msg));
+        return make_error(format_at(name, e.mark, e.msg + unquoted_ipv6_hint(text, e.mark)));
     } catch (const std::exception& e) {
         return make_error(format_at(name, YAML::Mark::null_mark(), e.what()));
     }
@@ -1321,7 +1413,8 @@ std::string endpoint_options_manual(EndpointSchemas types) {
     static const char* const kKinds[] = {"true or false", "a positive integer",
                                          "a duration such as 250ms or 2s",
                                          "a size in bytes such as 16KiB or 64MiB",
-                                         "host:port, the host an IPv4 address or localhost",
+                                         "host:port, the host an IPv4 address, an IPv6 address in "
+                                         "brackets ([::1]:14550) or a host name",
                                          "a text"};
     std::string out;
     for (const EndpointSchema* t : types) {

@@ -192,4 +192,14 @@ std::string endpoint_options_manual(EndpointSchemas types);
 /// sign, no spaces, at most 9 fraction digits and no finer than 1ns; nullopt otherwise.
 std::optional<Duration> parse_duration(std::string_view text);
 
+/// A host and port as an endpoint's `address` writes them: "192.0.2.1:14550",
+/// "[2001:db8::5]:14550" (an IPv6 address in brackets), "lte.example.net:14550";
+/// "localhost" reads as 127.0.0.1. On error `error` says what is wrong (for the config's message).
+struct HostPort {
+    std::string host;  // an IPv4 or IPv6 literal (no brackets) or a host name
+    uint16_t port = 0;
+    std::string error;  // empty when it parsed
+};
+HostPort parse_host_port(std::string_view text);
+
 }  // namespace mavbond

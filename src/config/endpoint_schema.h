@@ -23,7 +23,7 @@ enum class OptionKind {
     Count,     // a positive integer up to 2^32 - 1
     Time,      // a duration with a unit, greater than 0: 250ms, 2s
     Size,      // bytes: 16384, 16KiB, 64M, 1GiB; within [min, max] (max 0: no limit)
-    Address,   // host:port, an IPv4 address or localhost
+    Address,   // host:port: an IPv4 address, [an IPv6 address] or a host name
     Text,      // any text but empty (a device, a directory)
 };
 
@@ -42,7 +42,7 @@ struct OptionValue {
     bool flag = false;
     uint64_t number = 0;  // Count, Size
     Duration duration{};
-    std::string text;     // Text; Address: the host ("localhost" as 127.0.0.1)
+    std::string text;     // Text; Address: the host, no brackets ("localhost" as 127.0.0.1)
     uint16_t port = 0;    // Address
     bool operator==(const OptionValue&) const = default;
 };

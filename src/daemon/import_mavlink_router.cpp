@@ -7,13 +7,13 @@
 // check stays one line; import_mavlink_router() returns it as a value.
 #include "daemon/import_mavlink_router.h"
 
-#include <arpa/inet.h>
-
 #include <algorithm>
 #include <charconv>
 #include <map>
 #include <optional>
 #include <set>
+
+#include "config/config.h"
 
 namespace mavbond {
 namespace {
@@ -107,7 +107,9 @@ private:
     /// 64 bits on every target: a 32-bit long cannot hold a baud rate's range (armhf).
     int64_t integer(const IniKey& k, int64_t min, int64_t max) const;
     std::vector<uint32_t> id_list(const IniKey& k) const;
-    std::string ipv4(const IniKey& k) const;
+    /// Address and Port as mavbond's `address:` value (an IPv6 address in brackets, quoted
+    /// for YAML); empty when Address is no address or name mavbond takes.
+    std::string address_value(const IniKey& k, int64_t port) const;
     std::string unique_name(const std::string& wanted, int line);
 
     void general(const IniSection& s);
@@ -206,11 +208,16 @@ std::vector<uint32_t> Importer::id_list(const IniKey& k) const {
     return ids;
 }
 
-std::string Importer::ipv4(const IniKey& k) const {
-    in_addr addr{};
-    if (inet_pton(AF_INET, k.value.c_str(), &addr) == 1)
-        return k.value;
-    return "";
+std::string Importer::address_value(const IniKey& k, int64_t port) const {
+    // mavlink-router writes an IPv6 address with or without brackets.
+    std::string host = k.value;
+    if (host.size() > 2 && host.front() == '[' && host.back() == ']')
+        host = host.substr(1, host.size() - 2);
+    bool v6 = host.find(':') != std::string::npos;
+    std::string text = (v6 ? "[" + host + "]" : host) + ":" + std::to_string(port);
+    if (!parse_host_port(text).error.empty())
+        return "";
+    return v6 ? "\"" + text + "\"" : text;
 }
 
 std::string Importer::unique_name(const std::string& wanted, int line) {
@@ -396,7 +403,6 @@ void Importer::endpoint(const IniSection& s) {
         if (!server && mode != "normal" && mode != "client")
             fail(mode_key.line, "Mode: '" + mode_key.value + "' is not Normal or Server");
         const IniKey& addr_key = require("address", "Address");
-        std::string host = ipv4(addr_key);
         int64_t port = kDefaultUdpClientPort;
         if (const IniKey* k = take("port"))
             port = integer(*k, 1, 65535);
@@ -406,25 +412,26 @@ void Importer::endpoint(const IniSection& s) {
             warn(s.line, section_label(s) + " has no Port: mavlink-router picked a free one from "
                                             "14550; mavbond sends to 14550",
                  &ep.comments);
-        if (host.empty()) {
+        std::string address = address_value(addr_key, port);
+        if (address.empty()) {
             translatable = false;
             warn(addr_key.line, section_label(s) + " Address = " + addr_key.value +
-                                    ": mavbond takes IPv4 addresses only",
+                                    ": not an IPv4 or IPv6 address or a host name",
                  &ep.comments);
         }
         ep.lines = {"type: udp", std::string("mode: ") + (server ? "server" : "client"),
-                    "address: " + host + ":" + std::to_string(port)};
+                    "address: " + address};
     } else {  // tcpendpoint
         const IniKey& addr_key = require("address", "Address");
         int64_t port = integer(require("port", "Port"), 1, 65535);
-        std::string host = ipv4(addr_key);
-        if (host.empty()) {
+        std::string address = address_value(addr_key, port);
+        if (address.empty()) {
             translatable = false;
             warn(addr_key.line, section_label(s) + " Address = " + addr_key.value +
-                                    ": mavbond takes IPv4 addresses only",
+                                    ": not an IPv4 or IPv6 address or a host name",
                  &ep.comments);
         }
-        ep.lines = {"type: tcp", "mode: client", "address: " + host + ":" + std::to_string(port)};
+        ep.lines = {"type: tcp", "mode: client", "address: " + address};
         if (const IniKey* k = take("retrytimeout")) {
             int64_t secs = integer(*k, 0, 86400);
             if (secs == 0)

@@ -27,6 +27,9 @@ const std::map<std::string, const char*>& counter_help() {
         {"sig_unsigned", "Unsigned frames on a signing endpoint (dropped when signing is required)."},
         {"sig_bad", "Frames dropped because their signature does not verify."},
         {"sig_replay", "Signed frames dropped as replayed or too old."},
+        {"resolve_failures", "Lookups of a client's host name that failed (retried with backoff)."},
+        {"address_changes", "Lookups of a client's host name that gave a new address."},
+        {"peer_rebinds", "UDP peers that went on from a new address (a NAT rebinding): the old one forgotten."},
     };
     return help;
 }

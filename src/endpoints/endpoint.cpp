@@ -108,29 +108,36 @@ void Endpoint::apply_radio_rate(uint64_t rate) {
     });
 }
 
-void Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
+bool Endpoint::receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival) {
     // The radio's own report is taken here and goes no further: mavbond reports for the bond
     // (src/daemon/radio_report.h). Before the signature check: a radio cannot sign. Nor does it
     // make the link look alive: the radio says it whether or not the far side hears.
     if (radio_ && is_radio_report(frame, config_.tx_budget.radio_status)) {
         take_radio_report(frame, arrival);
-        return;
+        return false;  // nor does it say who sends on the link
     }
     stats_.last_rx = arrival;
     if (verifier_ && !authentic(frame))
-        return;
+        return false;
     bool accepted = filter_in_.empty() || filter_in_.passes(frame.msgid);
     if (!accepted)
         stats_.rx_filtered++;
     batch.add(frame, *this, arrival, accepted);
+    return true;
 }
 
-void Endpoint::receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
-                                TimePoint arrival, UnknownIdPolicy policy) {
+Endpoint::FrameOrigin Endpoint::receive_datagram(ReceivedBatch& batch,
+                                                 std::span<const uint8_t> datagram,
+                                                 TimePoint arrival, UnknownIdPolicy policy) {
     DatagramParser parser(datagram, policy, stats_.rx);
     Frame frame;
-    while (parser.next(frame))
-        receive(batch, frame, arrival);
+    FrameOrigin last;
+    while (parser.next(frame)) {
+        // A frame signing refuses says nothing about who sent it (it may be forged).
+        if (receive(batch, frame, arrival))
+            last = FrameOrigin{true, frame.sysid, frame.compid, frame.seq};
+    }
+    return last;
 }
 
 bool Endpoint::authentic(const Frame& frame) {

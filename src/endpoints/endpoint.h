@@ -66,9 +66,15 @@ public:
     void flush() override;
     bool has_pending() const { return !tx_.empty(); }
 
-    /// Parses a datagram this link received and puts its frames into `batch` (receive()).
-    void receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
-                          TimePoint arrival, UnknownIdPolicy policy);
+    /// Who sent a frame, and its place in the sender's sequence.
+    struct FrameOrigin {
+        bool known = false;  // false: the datagram held no frame
+        uint8_t sysid = 0, compid = 0, seq = 0;
+    };
+    /// Parses a datagram this link received and puts its frames into `batch` (receive());
+    /// returns the origin of its last frame that signing let in.
+    FrameOrigin receive_datagram(ReceivedBatch& batch, std::span<const uint8_t> datagram,
+                                 TimePoint arrival, UnknownIdPolicy policy);
 
     /// The endpoint stops (the daemon exits, or a reload removes it): what is queued is written
     /// if the peer takes it now, a frame left half written on a stream is completed (waiting
@@ -106,8 +112,8 @@ protected:
 
     /// A frame this link received, on its way into `batch`: dropped here (counted) when its
     /// signature does not let it in; routing only learns from it when allow_in/block_in
-    /// refuse it.
-    void receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival);
+    /// refuse it. False when signing refused it.
+    bool receive(ReceivedBatch& batch, const Frame& frame, TimePoint arrival);
     /// Drops everything queued (reconnects start at a frame boundary), counting it.
     void clear_tx();
     /// Runs `fn` after this dispatch round, unless the endpoint is gone by then (a reload may

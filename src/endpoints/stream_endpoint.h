@@ -34,6 +34,12 @@ inline constexpr EndpointOption kReconnectMax = {
     "reconnect_max", OptionKind::Time, "5s",
     "The longest wait between two attempts; not below reconnect_min."};
 std::optional<std::pair<const char*, std::string>> reconnect_bounds(const EndpointOptions& o);
+/// A client that may be given a host name (UDP, TCP): how often it is looked up again.
+inline constexpr EndpointOption kResolveInterval = {
+    "resolve_interval", OptionKind::Time, "60s",
+    "How often a host name in address is looked up again (dynamic DNS); also after a send or "
+    "connect fails, no sooner than reconnect_min. A name that does not resolve is retried with "
+    "backoff (reconnect_min to reconnect_max). An address literal is never looked up."};
 /// The backoff reconnect_min and reconnect_max of `config` give.
 Backoff reconnect_backoff(const EndpointConfig& config);
 

@@ -13,13 +13,18 @@ namespace mavbond {
 namespace {
 
 constexpr EndpointOption kTcpServerOptions[] = {
-    {"address", OptionKind::Address, nullptr, "Where to listen (0.0.0.0:5760).", true},
+    {"address", OptionKind::Address, nullptr,
+     "Where to listen (0.0.0.0:5760; [::]:5760 for IPv6 and IPv4).", true},
 };
 
 constexpr EndpointOption kTcpClientOptions[] = {
-    {"address", OptionKind::Address, nullptr, "Where to connect (127.0.0.1:5760).", true},
+    {"address", OptionKind::Address, nullptr,
+     "Where to connect (127.0.0.1:5760, [2001:db8::5]:5760, lte.example.net:5760). A host name "
+     "is looked up off the event loop before each connect that follows a failure, and every "
+     "resolve_interval (a connection that works is kept).", true},
     kReconnectMin,
     kReconnectMax,
+    kResolveInterval,
 };
 
 void set_nodelay(int fd) {
@@ -41,7 +46,7 @@ const EndpointSchema kTcpClientType = {"tcp", "client",
 
 // --- TcpConnection -------------------------------------------------------------------------
 
-TcpConnection::TcpConnection(TcpServer& server, const sockaddr_in& peer)
+TcpConnection::TcpConnection(TcpServer& server, const SocketAddress& peer)
     : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop(),
                      server.sink_, server.policy_, &server),
       server_(server) {}
@@ -101,10 +106,10 @@ void TcpServer::finish(TimePoint deadline) {
 
 void TcpServer::on_accept() {
     for (;;) {
-        sockaddr_in peer{};
-        socklen_t len = sizeof peer;
-        UniqueFd fd(accept4(fd_.get(), reinterpret_cast<sockaddr*>(&peer), &len,
-                            SOCK_NONBLOCK | SOCK_CLOEXEC));
+        SocketAddress peer;
+        socklen_t len = SocketAddress::capacity();
+        UniqueFd fd(accept4(fd_.get(), peer.buffer(), &len, SOCK_NONBLOCK | SOCK_CLOEXEC));
+        peer.set_size(len);
         if (!fd) {
             if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
                 log_warning("[tcp:%s] accept: %s", name().c_str(), errno_text(errno).c_str());
@@ -143,29 +148,80 @@ void TcpServer::drop_client(TcpConnection& client) {
 
 Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config, EventLoop& loop,
                                                    FrameSink& sink, UnknownIdPolicy policy) {
-    auto addr = resolve_ipv4(config.options.text("address"), config.options.port("address"));
-    if (!addr)
-        return addr.error();
-    std::unique_ptr<TcpClient> client(new TcpClient(config, loop, sink, policy, *addr));
+    const EndpointOptions& o = config.options;
+    const std::string& host = o.text("address");
+    uint16_t port = o.port("address");
+    bool literal = is_numeric_host(host);
+    std::unique_ptr<TcpClient> client(new TcpClient(
+        config, loop, sink, policy, literal ? SocketAddress::numeric(host, port) : SocketAddress()));
     sink.attach(*client);
-    client->connect_now();
+    if (literal) {
+        client->connect_now();
+        return client;
+    }
+    // A name: looked up off the loop, first, after each failure and every resolve_interval;
+    // it connects once the first lookup gives an address.
+    client->resolver_ = std::make_unique<NameResolver>(
+        loop, host, port, SOCK_STREAM,
+        [c = client.get()](Result<SocketAddress> r) { c->on_resolved(std::move(r)); });
+    if (auto r = client->resolver_->start(); !r)
+        return r.error();
+    Duration every = o.duration("resolve_interval");
+    client->resolve_timer_ = loop.schedule(every, [c = client.get(), every] {
+        (void)c->resolver_->start();  // a failure to start is retried next time
+        return every;
+    });
     return client;
 }
 
 TcpClient::TcpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink,
-                     UnknownIdPolicy policy, const sockaddr_in& addr)
+                     UnknownIdPolicy policy, const SocketAddress& addr)
     : StreamEndpoint(config, config.name, loop, sink, policy), addr_(addr),
       backoff_(reconnect_backoff(config)) {}
 
 TcpClient::~TcpClient() { sink_.detach(*this); }
 
+void TcpClient::on_resolved(Result<SocketAddress> result) {
+    const std::string& host = resolver_->host();
+    bool first = addr_.empty();
+    if (!result) {
+        stats_.resolve_failures++;
+        if (!resolve_failing_logged_)
+            log_warning("[tcp:%s] %s%s", name().c_str(), result.error().message.c_str(),
+                        first ? "; retrying with backoff" : "; connecting to the last address");
+        resolve_failing_logged_ = true;
+        // Not resolved yet: the retry looks it up again (retry_later starts a lookup).
+        if (first && !retry_timer_.active())
+            retry_later(result.error().message);
+        return;
+    }
+    if (resolve_failing_logged_)
+        log_notice("[tcp:%s] %s resolves again", name().c_str(), host.c_str());
+    resolve_failing_logged_ = false;
+    if (!first && same_address(addr_, *result))
+        return;
+    addr_ = *result;
+    if (first) {
+        retry_timer_ = {};
+        connect_now();
+        return;
+    }
+    // The connection that works is kept: the next connect goes to the new address.
+    stats_.address_changes++;
+    log_notice("[tcp:%s] %s now %s", name().c_str(), host.c_str(), addr_.to_string().c_str());
+}
+
 void TcpClient::connect_now() {
-    auto fd = make_socket(SOCK_STREAM);
+    if (addr_.empty()) {
+        retry_later("not resolved yet");
+        return;
+    }
+    auto fd = make_socket(addr_.family(), SOCK_STREAM);
     if (!fd) {
         retry_later(fd.error().message);
         return;
     }
-    int rc = connect(fd->get(), reinterpret_cast<const sockaddr*>(&addr_), sizeof addr_);
+    int rc = connect(fd->get(), addr_.get(), addr_.size());
     if (rc < 0 && errno != EINPROGRESS) {
         retry_later(errno_text(errno));
         return;
@@ -205,8 +261,11 @@ void TcpClient::on_connecting(uint32_t) {
 
 void TcpClient::retry_later(const std::string& reason) {
     Duration delay = backoff_.next();
+    // The address may have moved (dynamic DNS): the retry uses what a lookup gives by then.
+    if (resolver_)
+        (void)resolver_->start();
     // One line per state change, not one per attempt.
-    if (!failing_logged_) {
+    if (!failing_logged_ && !addr_.empty()) {
         log_warning("[tcp:%s] cannot connect to %s: %s; retrying with backoff up to %.1fs",
                     name().c_str(), to_string(addr_).c_str(), reason.c_str(),
                     std::chrono::duration<double>(backoff_.max()).count());

@@ -7,6 +7,7 @@
 #include <memory>
 #include <vector>
 
+#include "endpoints/net.h"
 #include "endpoints/stream_endpoint.h"
 
 namespace mavbond {
@@ -19,7 +20,7 @@ class TcpServer;
 /// One accepted client of a TcpServer.
 class TcpConnection : public StreamEndpoint {
 public:
-    TcpConnection(TcpServer& server, const sockaddr_in& peer);
+    TcpConnection(TcpServer& server, const SocketAddress& peer);
     ~TcpConnection() override;
     const char* kind() const override { return "tcp-conn"; }
     Result<void> start(UniqueFd fd) { return start_stream(std::move(fd)); }
@@ -70,12 +71,16 @@ protected:
 
 private:
     TcpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
-              const sockaddr_in& addr);
+              const SocketAddress& addr);
     void connect_now();
     void on_connecting(uint32_t events);
     void retry_later(const std::string& reason);
+    void on_resolved(Result<SocketAddress> result);
 
-    sockaddr_in addr_;
+    SocketAddress addr_;  // empty until a name resolves
+    std::unique_ptr<NameResolver> resolver_;  // null for an address literal
+    EventLoop::Timer resolve_timer_;          // every resolve_interval
+    bool resolve_failing_logged_ = false;
     Backoff backoff_;
     UniqueFd connecting_fd_;
     EventLoop::Watch connecting_watch_;

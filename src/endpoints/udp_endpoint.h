@@ -13,6 +13,8 @@
 
 #include "core/event_loop.h"
 #include "endpoints/endpoint.h"
+#include "endpoints/net.h"
+#include "endpoints/stream_endpoint.h"
 
 namespace mavbond {
 
@@ -31,7 +33,7 @@ public:
     /// Receives up to kCount datagrams; returns how many, 0 when none, -errno on error.
     int receive(int fd, const EventLoop& loop);
     std::span<const uint8_t> data(size_t i) const { return {slot(i), msgs_[i].msg_len}; }
-    const sockaddr_in& from(size_t i) const { return addrs_[i]; }
+    const SocketAddress& from(size_t i) const { return addrs_[i]; }
     /// When datagram i arrived (the kernel's receive time, on the monotonic clock).
     TimePoint arrival(size_t i) const { return arrival_[i]; }
     /// What the last receive() tells the sink: the time up to which the socket is read (the
@@ -51,7 +53,7 @@ private:
     std::unique_ptr<uint8_t[]> arena_;
     std::array<mmsghdr, kCount> msgs_{};
     std::array<iovec, kCount> iovs_{};
-    std::array<sockaddr_in, kCount> addrs_{};
+    std::array<SocketAddress, kCount> addrs_{};
     std::array<std::array<uint8_t, kControl>, kCount> control_{};
     std::array<TimePoint, kCount> arrival_{};
     size_t count_ = 0;
@@ -63,11 +65,21 @@ class UdpServer;
 
 class UdpPeer : public Endpoint {
 public:
-    UdpPeer(UdpServer& server, const sockaddr_in& addr, TimePoint now);
+    UdpPeer(UdpServer& server, const SocketAddress& addr, TimePoint now);
     const char* kind() const override { return "udp-peer"; }
-    const sockaddr_in& address() const { return addr_; }
+    /// Not once its sender went on from another address (what is routed to it is dropped,
+    /// counted, until it is forgotten at the round's end).
+    bool ready() const override { return !rebound_; }
+    void mark_rebound() { rebound_ = true; }
+    bool rebound() const { return rebound_; }
+    const SocketAddress& address() const { return addr_; }
     TimePoint last_heard() const { return last_heard_; }
     void heard(TimePoint now) { last_heard_ = now; }
+    /// The last frame of each of the last few components it carried (a vehicle's autopilot,
+    /// camera, ...): what a rebinding is recognised by.
+    static constexpr size_t kRecentOrigins = 4;
+    const std::array<FrameOrigin, kRecentOrigins>& recent_origins() const { return recent_; }
+    void heard_from(const FrameOrigin& origin);
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
@@ -75,8 +87,11 @@ protected:
 
 private:
     UdpServer& server_;
-    sockaddr_in addr_;
+    SocketAddress addr_;
     TimePoint last_heard_;
+    std::array<FrameOrigin, kRecentOrigins> recent_{};
+    size_t next_recent_ = 0;  // the slot a new component takes (round robin)
+    bool rebound_ = false;
 };
 
 class UdpServer : public Endpoint {
@@ -96,7 +111,14 @@ private:
     UdpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               UniqueFd fd);
     void on_events(uint32_t events);
-    UdpPeer* peer_for(const sockaddr_in& addr, TimePoint now);
+    /// The peer `addr` is, learned now when new (`is_new` says so); null past kMaxPeers.
+    UdpPeer* peer_for(const SocketAddress& addr, TimePoint now, bool& is_new);
+    /// A new peer whose first frames carry on an old peer's stream (the same system and
+    /// component, the sequence a little further): the old peer's NAT mapping was replaced.
+    /// Returns the old peer, or null.
+    UdpPeer* rebound_from(const UdpPeer& fresh) const;
+    /// Forgets a peer: detached, what waits for it dropped and counted, counters kept.
+    void forget(UdpPeer& peer, TimePoint now);
     void forget_silent_peers();
 
     static constexpr size_t kMaxPeers = 64;
@@ -110,6 +132,11 @@ private:
     ReceivedBatch frames_{sink_, &input_};
     std::vector<std::unique_ptr<UdpPeer>> peers_;
     UdpPeer* last_peer_ = nullptr;  // the peer the last datagram came from
+    // Addresses forgotten as rebound: one that sends again was a second live path of one
+    // system (two modems to one port), not a NAT rebinding, and the detection stops.
+    std::array<SocketAddress, 4> rebound_from_{};
+    size_t next_rebound_ = 0;
+    bool detect_rebinding_ = true;
     LinkCounters retired_;      // counters of forgotten peers, so totals never go back
     uint64_t refused_peers_ = 0;
 };
@@ -120,6 +147,8 @@ public:
                                                    FrameSink& sink, UnknownIdPolicy policy);
     ~UdpClient() override;
     const char* kind() const override { return "udp-client"; }
+    /// Not before its host name resolved once.
+    bool ready() const override { return static_cast<bool>(fd_); }
     LinkCounters total_counters() const override;
 
 protected:
@@ -127,20 +156,34 @@ protected:
     void on_backlog(bool backlog) override;
 
 private:
-    UdpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
-              UniqueFd fd);
+    UdpClient(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy);
     void on_events(uint32_t events);
+    /// Sends to `addr` from now on: the same socket (the same source port) when it can.
+    Result<void> use_address(const SocketAddress& addr);
+    void on_resolved(Result<SocketAddress> result);
+    /// A send failed: the address may have moved. Looks the name up again, no sooner than
+    /// reconnect_min after the last lookup that a failure started.
+    void failed_to_send();
 
     FrameSink& sink_;
     UnknownIdPolicy policy_;
-    UniqueFd fd_;  // connected to the peer
+    SocketAddress addr_;   // empty until a name resolves
+    UniqueFd fd_;          // connected to addr_
     EventLoop::Watch watch_;
+    std::unique_ptr<NameResolver> resolver_;  // null for an address literal
+    Backoff backoff_;      // lookups that fail
+    EventLoop::Timer resolve_timer_;  // every resolve_interval
+    EventLoop::Timer resolve_retry_;  // after a failed lookup, with backoff
+    TimePoint next_failure_lookup_{};
+    bool failing_logged_ = false;
+    uint64_t old_socket_drops_ = 0;  // of sockets replaced (another address family)
     Input input_{config().bond, watch_};  // for the arrival order of its bond's links
     DatagramBatch datagrams_;
     ReceivedBatch frames_{sink_, &input_};
 };
 
 /// sendmmsg of one datagram per iovec (to `to`, or to the connected peer when null).
-int send_datagrams(int fd, const iovec* frames, size_t count, const sockaddr_in* to);
+int send_datagrams(int fd, const iovec* frames, size_t count, const SocketAddress* to);
+
 
 }  // namespace mavbond

@@ -51,6 +51,9 @@ struct LinkCounters {
     uint64_t sig_unsigned = 0;  // signing endpoints: unsigned frames (dropped when required)
     uint64_t sig_bad = 0;       // signing endpoints: dropped, signature does not verify
     uint64_t sig_replay = 0;    // signing endpoints: dropped, timestamp replayed or too old
+    uint64_t resolve_failures = 0;  // clients of a name: lookups that failed
+    uint64_t address_changes = 0;   // clients of a name: a lookup gave a new address
+    uint64_t peer_rebinds = 0;      // UDP servers: a peer went on from a new address (NAT)
     TimePoint last_rx{};        // when a frame last came in (epoch: never); not a counter
     std::array<TxClassCounters, kTxClassCount> tx_class{};  // with a budget only (see above)
 
@@ -77,6 +80,9 @@ void for_each_counter(const LinkCounters& s, F&& f) {
     f("sig_unsigned", s.sig_unsigned);
     f("sig_bad", s.sig_bad);
     f("sig_replay", s.sig_replay);
+    f("resolve_failures", s.resolve_failures);
+    f("address_changes", s.address_changes);
+    f("peer_rebinds", s.peer_rebinds);
 }
 
 /// Dense id of an attached link (reused after it detaches).

@@ -134,8 +134,12 @@ private:
             }
             switch (o.kind) {
             case OptionKind::Address: {
-                in_addr addr{};
-                FUZZ_CHECK(inet_pton(AF_INET, ep.options.text(o.key).c_str(), &addr) == 1 &&
+                // What was read reads again as itself: a literal or a host name, a port.
+                const std::string& host = ep.options.text(o.key);
+                std::string again = (host.find(':') != std::string::npos ? "[" + host + "]" : host) +
+                                    ":" + std::to_string(ep.options.port(o.key));
+                HostPort reread = parse_host_port(again);
+                FUZZ_CHECK(reread.error.empty() && reread.host == host &&
                                ep.options.port(o.key) != 0,
                            "endpoint '%s': address '%s' port %u", name,
                            ep.options.text(o.key).c_str(), ep.options.port(o.key));

@@ -39,7 +39,6 @@ WARNINGS = {
         "redundant.conf:15: Group 'air link' is the bond 'air_link'",
         "redundant.conf:24: [UartEndpoint radio@2.4GHz] AllowSrcSysOut = 1",
         "redundant.conf:19: endpoint 'radio@2.4GHz' is named 'radio_2.4GHz'",
-        "redundant.conf:35: [UdpEndpoint ipv6-gcs] Address = [::1]",
         "redundant.conf:38: [UdpEndpoint defaultport] has no Port",
     ],
 }

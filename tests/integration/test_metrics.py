@@ -180,7 +180,7 @@ def test_metrics_match_the_status_socket_and_the_links(lab, tmp_path):
             elif isinstance(v, int) and not isinstance(v, bool):
                 assert value(m, f"mavbond_endpoint_{k}_total", **labels) == v, (ep["name"], k)
                 checked += 1
-    assert checked == 3 * 16
+    assert checked == 3 * 19  # for_each_counter: 16, and resolve_failures, address_changes, peer_rebinds
 
     filters = {f["name"]: f for f in st["filters"]}
     stats, dedup = filters["stats"]["status"], filters["dedup"]["status"]

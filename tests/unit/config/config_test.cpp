@@ -480,7 +480,8 @@ const BadCase kBadCases[] = {
      "t.yaml:2:5: endpoint 'gcs': missing required key 'address' (host:port)"},
     {"AddressWithoutPort",
      "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0}\n",
-     "t.yaml:2:51: endpoint 'gcs': 'address': '0.0.0.0' needs host:port (e.g. 0.0.0.0:14550)"},
+     "t.yaml:2:51: endpoint 'gcs': 'address': '0.0.0.0' needs host:port (e.g. 0.0.0.0:14550, "
+     "[::1]:14550, lte.example.net:14550)"},
     {"PortZero", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:0}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': port '0' is not in 1..65535"},
     {"PortTooBig", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 0.0.0.0:65536}\n",
@@ -488,11 +489,22 @@ const BadCase kBadCases[] = {
     {"PortText", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: '0.0.0.0:gcs'}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': port 'gcs' is not in 1..65535"},
     {"BadHost", "endpoints:\n  - {name: gcs, type: udp, mode: server, address: 300.1.2.3:14550}\n",
-     "t.yaml:2:51: endpoint 'gcs': 'address': host '300.1.2.3' is not an IPv4 address (a.b.c.d) "
-     "or 'localhost'"},
-    {"HostName", "endpoints:\n  - {name: gcs, type: tcp, mode: client, address: gcs.lan:5760}\n",
-     "t.yaml:2:51: endpoint 'gcs': 'address': host 'gcs.lan' is not an IPv4 address (a.b.c.d) "
-     "or 'localhost'"},
+     "t.yaml:2:51: endpoint 'gcs': 'address': host '300.1.2.3' is not an IPv4 address (a.b.c.d), "
+     "an IPv6 address in brackets or a host name"},
+    {"BadHostName", "endpoints:\n  - {name: gcs, type: tcp, mode: client, address: gcs_lan:5760}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': host 'gcs_lan' is not an IPv4 address (a.b.c.d), "
+     "an IPv6 address in brackets or a host name"},
+    {"BareIpv6", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '::1:14550'}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': host '::1': an IPv6 address is written in brackets "
+     "([::1]:port)"},
+    {"BadIpv6", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::g]:14550'}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': '[::g]' is not an IPv6 address"},
+    {"Ipv6Unquoted", "endpoints:\n  - name: gcs\n    type: udp\n    mode: server\n    address: [::1]:14550\n",
+     "t.yaml:5:19: end of map not found (an IPv6 address in brackets is quoted in YAML: "
+     "address: \"[::1]:14550\")"},
+    {"Ipv6NoPort", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::1]'}\n",
+     "t.yaml:2:51: endpoint 'gcs': 'address': '[::1]' needs a port after the brackets "
+     "([::1]:14550)"},
     {"MissingDevice", "endpoints:\n  - name: fc\n    type: uart\n    baud: 57600\n",
      "t.yaml:2:5: endpoint 'fc': missing required key 'device'"},
     {"BaudZero", "endpoints:\n  - {name: fc, type: uart, device: /dev/ttyS0, baud: 0}\n",
@@ -858,4 +870,46 @@ TEST(ConfigParse, StrayTokenRefused) {
     EXPECT_EQ("t.yaml:3:1: only one YAML document is allowed (found a second one after '---')",
               config.error().message);
 }
+}  // namespace mavbond
+
+namespace mavbond {
+namespace {
+
+TEST(HostPort, ReadsEveryFormAnAddressIsWrittenIn) {
+    struct Case {
+        const char* text;
+        const char* host;
+        uint16_t port;
+    };
+    const Case cases[] = {
+        {"192.0.2.1:14550", "192.0.2.1", 14550},
+        {"0.0.0.0:1", "0.0.0.0", 1},
+        {"localhost:5760", "127.0.0.1", 5760},
+        {"[::1]:14550", "::1", 14550},
+        {"[::]:14550", "::", 14550},
+        {"[2001:db8::5]:65535", "2001:db8::5", 65535},
+        {"[::ffff:192.0.2.1]:9", "::ffff:192.0.2.1", 9},
+        {"lte.example.net:14550", "lte.example.net", 14550},
+        {"lte.example.net.:14550", "lte.example.net.", 14550},
+        {"ip6-localhost:1", "ip6-localhost", 1},
+        {"a1-b2.c3:2", "a1-b2.c3", 2},
+    };
+    for (const Case& c : cases) {
+        HostPort hp = parse_host_port(c.text);
+        EXPECT_EQ("", hp.error) << c.text;
+        EXPECT_EQ(c.host, hp.host) << c.text;
+        EXPECT_EQ(c.port, hp.port) << c.text;
+    }
+}
+
+TEST(HostPort, RefusesWhatNoResolverTakes) {
+    const char* bad[] = {"",         ":14550",        "[::1]",        "[::1]14550", "[::1:14550",
+                         "::1:14550", "[fe80::zz]:1", "1.2.3:14550",  "1.2.3.4.5:1", "-a.net:1",
+                         "a-.net:1",  "a..net:1",     "a_b.net:1",    "a.net:0",     "a.net:65536",
+                         "a.net:x",   "a.net:-1",     "[a.net]:1"};
+    for (const char* text : bad)
+        EXPECT_NE("", parse_host_port(text).error) << "'" << text << "'";
+}
+
+}  // namespace
 }  // namespace mavbond
