@@ -697,6 +697,11 @@ tx_classes:
     // Control kept its defaults: commands, their acks, HEARTBEAT.
     for (uint32_t id : {0u, 76u, 77u})
         EXPECT_TRUE(std::binary_search(c.control.begin(), c.control.end(), id)) << id;
+    // Sorted and each once: the budget bisects it (a name the dialect lacked once came out
+    // as a second COMMAND_ACK).
+    EXPECT_TRUE(std::adjacent_find(c.control.begin(), c.control.end(),
+                                   std::greater_equal<uint32_t>()) == c.control.end());
+    EXPECT_EQ(36u, c.control.size()) << "every default control message is in the dialect";
     ASSERT_EQ(2u, c.caps.size());
     EXPECT_EQ(std::make_pair(30u, Duration(milliseconds(100))), c.caps[0]);
     EXPECT_EQ(std::make_pair(33u, Duration(seconds(2))), c.caps[1]);
