@@ -21,6 +21,7 @@
 #include "routing/link_events.h"
 #include "routing/local_source.h"
 #include "routing/router.h"
+#include "routing/standby.h"
 
 namespace mavbond {
 
@@ -96,6 +97,7 @@ private:
     std::vector<Endpoint::Ptr> endpoints_;  // config order
     std::unique_ptr<LocalSource> local_source_;
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
+    std::unique_ptr<StandbyMonitor> standby_;        // remade with it: reports of the bonds
     std::unique_ptr<StatusSocket> status_;
     std::unique_ptr<MetricsHttpServer> metrics_;
     ProblemReport report_;

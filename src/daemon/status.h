@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include "routing/standby.h"
+
 #include "core/clock.h"
 #include "core/metric_set.h"
 #include "endpoints/endpoint.h"
@@ -37,6 +39,12 @@ struct Status {
         uint64_t switches = 0;
         std::vector<BondLink> links;  // the members' links attached now
         std::vector<std::pair<const char*, uint64_t>> renumber;  // empty: no renumbering
+        /// With a metered member (routing/standby.h): its state and counters.
+        bool has_standby = false;
+        bool standby_active = false;
+        uint64_t metered_tx_bytes = 0;  // sent on the metered members' links, every frame
+        Standby::Counters standby;
+        std::vector<std::pair<std::string, int32_t>> peer_loss;  // free link (peer's name), per mille
     };
 
     TimePoint taken;

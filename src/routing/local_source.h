@@ -4,6 +4,7 @@
 // component and not as a vehicle.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string_view>
 
@@ -27,11 +28,15 @@ public:
     void send_heartbeat();
     /// One STATUSTEXT; text beyond STATUSTEXT's 50 characters is cut.
     void send_statustext(Severity severity, std::string_view text);
+    /// One NAMED_VALUE_INT to the member links of bond `bond` only (a standby report).
+    void send_named_value_int(const std::array<char, 10>& name, int32_t value, uint32_t bond);
 
     uint64_t frames_sent() const { return frames_sent_; }
 
 private:
-    void send(uint32_t msgid, const uint8_t* payload, size_t len);
+    static constexpr uint32_t kToEveryLink = UINT32_MAX;
+    /// To every link the bonds' tx policy lets send, or only to bond `bond`'s members.
+    void send(uint32_t msgid, const uint8_t* payload, size_t len, uint32_t bond = kToEveryLink);
 
     const IdentityConfig identity_;  // a copy: a reload replaces the Config
     EventLoop& loop_;
