@@ -14,7 +14,7 @@ namespace mavbond {
 namespace {
 constexpr uint32_t kMsgHeartbeat = 0;
 constexpr uint32_t kMsgStatustext = 253;
-constexpr uint32_t kMsgNamedValueInt = 251;
+constexpr uint32_t kMsgNamedValueInt = 252;
 constexpr uint8_t kTypeOnboardController = 18;  // MAV_TYPE_ONBOARD_CONTROLLER
 constexpr uint8_t kAutopilotInvalid = 8;        // MAV_AUTOPILOT_INVALID: not a flight controller
 constexpr uint8_t kStateActive = 4;             // MAV_STATE_ACTIVE

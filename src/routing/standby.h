@@ -52,7 +52,7 @@ public:
     static constexpr Duration kMinSilence = milliseconds(250);
     static constexpr Duration kMaxSilence = seconds(3);
     static constexpr Duration kReportTimeout = milliseconds(2500);  // two reports missed, and more
-    static constexpr uint32_t kMsgNamedValueInt = 251;
+    static constexpr uint32_t kMsgNamedValueInt = 252;
     static constexpr size_t kNameLen = 10;          // NAMED_VALUE_INT.name
     static constexpr const char* kNamePrefix = "mbl:";
     static constexpr size_t kHeldCapacity = 512;    // frames kept for a resend, at most

@@ -23,7 +23,7 @@ from synth import ardupilot_stream
 
 # The default control class (config.cpp default_tx_classes) as the stream has it.
 CONTROL_IDS = {0, 253, 76, 75, 77}  # HEARTBEAT, STATUSTEXT, COMMAND_LONG/INT/ACK
-NAMED_VALUE_INT = 251
+NAMED_VALUE_INT = 252
 
 
 def msgid(frame: bytes) -> int:
