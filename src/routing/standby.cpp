@@ -84,9 +84,16 @@ int32_t Standby::measured_permille(uint32_t member, TimePoint now, TimePoint las
     Member& m = members_[member];
     // Silent after four usual gaps: a 124 frames/s radio in a quarter second, a side that
     // hears a HEARTBEAT and a report a second in three.
-    const Duration silence = std::clamp(Duration(static_cast<int64_t>(4 * m.gap_ns)),
-                                        Duration(kMinSilence), Duration(kMaxSilence));
-    if (last_heard == TimePoint{} || now - last_heard > silence)
+    // Until two frames came, the usual gap is unknown: the longest wait.
+    const Duration silence =
+        m.gap_ns == 0 ? Duration(kMaxSilence)
+                      : std::clamp(Duration(static_cast<int64_t>(4 * m.gap_ns)),
+                                   Duration(kMinSilence), Duration(kMaxSilence));
+    // A link never heard is silent once the bond has waited as long as for any (the peer
+    // may be starting, and its first frame may come over the other link first).
+    if (last_heard == TimePoint{})
+        return now - started_ > kMaxSilence ? 1000 : 0;
+    if (now - last_heard > silence)
         return 1000;
     if (now >= started_)
         roll(m, bucket_of(now));
@@ -187,13 +194,36 @@ bool Standby::judge(TimePoint now) {
         }
         return false;
     }
-    if (loss >= failback_loss_) {
+    // Failing no more: back to standby once it has not failed for failback_after and the best
+    // free link's loss, averaged over the last failback_after (every judgement: ten a second
+    // and one per report), is below failback_loss. An average, not every window: a link
+    // losing 1 % has 2 s windows above 2 % by chance.
+    if (loss > failover_loss_) {
         healthy_since_ = TimePoint::max();
         return false;
     }
-    if (healthy_since_ == TimePoint::max())
+    if (healthy_since_ == TimePoint::max()) {
         healthy_since_ = now;
-    if (now - healthy_since_ >= failback_after_) {
+        healthy_ = {};
+    }
+    const Duration width = std::max(failback_after_ / kHealthyBuckets, Duration(1));
+    const int64_t epoch = (now - started_) / width;
+    HealthyBucket& b = healthy_[static_cast<size_t>(epoch % kHealthyBuckets)];
+    if (b.epoch != epoch)
+        b = HealthyBucket{epoch, 0, 0};
+    b.sum += loss;
+    b.count++;
+    if (now - healthy_since_ < failback_after_)
+        return false;
+    double sum = 0;
+    uint64_t count = 0;
+    for (const HealthyBucket& h : healthy_) {
+        if (h.count != 0 && h.epoch > epoch - kHealthyBuckets) {
+            sum += h.sum;
+            count += h.count;
+        }
+    }
+    if (count != 0 && sum / static_cast<double>(count) < failback_loss_) {
         active_ = false;
         counters_.to_standby++;
     }

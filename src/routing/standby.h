@@ -22,7 +22,8 @@
 // The sending side decides what the metered member carries (a state per bond):
 //   standby -> active  as soon as every free link the peer reports is above failover_loss, or no
 //                      report has come for kReportTimeout (the peer cannot be heard at all);
-//   active -> standby  once the best free link has stayed below failback_loss for failback_after.
+//   active -> standby  once no free link failed for failback_after and the best one's loss,
+//                      averaged over the last failback_after, is below failback_loss.
 // The gap between the two thresholds and the time to fail back are the hysteresis.
 // On going active, the frames standby held back from the metered member over the last `resend`
 // are sent on it first: they are the ones a failing radio lost while the failure was being
@@ -159,6 +160,15 @@ private:
     TimePoint last_report_{};
     bool active_ = false;
     TimePoint healthy_since_ = TimePoint::max();  // active: since when the free links are fine
+    // The best free link's loss at each judgement while active and not failing, in buckets of
+    // failback_after / kHealthyBuckets: its average over the last failback_after.
+    struct HealthyBucket {
+        int64_t epoch = -1;
+        double sum = 0;
+        uint64_t count = 0;
+    };
+    static constexpr int64_t kHealthyBuckets = 10;
+    std::array<HealthyBucket, kHealthyBuckets> healthy_{};
     std::vector<Held> held_;  // a ring (empty when resend is 0)
     size_t held_head_ = 0, held_count_ = 0;
     Counters counters_;

@@ -18,8 +18,7 @@ from collections import defaultdict
 import pytest
 
 from helpers import HOST, free_port, status_document, udp_client, udp_server
-from bonding_helpers import Receiver, multiset_diff, tlog
-from synth import ardupilot_stream
+from bonding_helpers import Receiver, multiset_diff, tlog, unique_stream
 
 # The default control class (config.cpp default_tx_classes) as the stream has it.
 CONTROL_IDS = {0, 253, 76, 75, 77}  # HEARTBEAT, STATUSTEXT, COMMAND_LONG/INT/ACK
@@ -91,24 +90,6 @@ class Stream(threading.Thread):
     def stop(self):
         self.stop_flag.set()
         self.join()
-
-
-def unique_stream(seconds, seed):
-    """The ArduPilot-like stream with each frame whose bytes recur (a constant message with the
-    same sequence byte 256 frames later) changed in its last payload byte (CRC recomputed):
-    every frame is known by its bytes alone, and the sequence numbers stay unbroken."""
-    seen, out = set(), []
-    for t, f in ardupilot_stream(seconds, seed=seed):
-        b = bytearray(f)
-        assert b[0] == 0xFD
-        n = b[1]
-        while bytes(b) in seen:
-            b[9 + n] = (b[9 + n] % 255) + 1  # never 0: a v2 payload's last byte is not a zero
-            crc = tlog.compute_crc(bytes(b), tlog.crc_extras()[tlog.msgid(bytes(b))])
-            b[10 + n], b[11 + n] = crc & 0xFF, crc >> 8
-        seen.add(bytes(b))
-        out.append((t / 1e6, bytes(b)))
-    return out
 
 
 def wait_for(predicate, what, timeout=60.0):

@@ -96,17 +96,37 @@ TEST_F(StandbyTest, GoesActiveAboveFailoverAndBackAfterFailbackWithHysteresis) {
         EXPECT_FALSE(s.judge(t));
         EXPECT_TRUE(s.active());
     }
-    // Below failback_loss: back only after failback_after of it.
+    // Below failback_loss: back once its average over failback_after is (the 5 % before it
+    // weighs in: half of the last 10 s at 5 % is 2.5 %).
     TimePoint healthy = t + seconds(1);
-    for (t = healthy; t < healthy + seconds(10); t += seconds(1)) {
-        s.take_report(Wire("mbl:radio", 10).frame, t);
+    for (t = healthy; t < healthy + seconds(5); t += seconds(1)) {
+        s.take_report(Wire("mbl:radio", 0).frame, t);
         s.judge(t);
         EXPECT_TRUE(s.active());
     }
-    s.take_report(Wire("mbl:radio", 10).frame, t);
-    s.judge(t);
+    for (; s.active() && t < healthy + seconds(20); t += seconds(1)) {
+        s.take_report(Wire("mbl:radio", 0).frame, t);
+        s.judge(t);
+    }
     EXPECT_FALSE(s.active());
+    EXPECT_LE(t, healthy + seconds(10));
     EXPECT_EQ(1u, s.counters().to_active);
+    EXPECT_EQ(1u, s.counters().to_standby);
+}
+
+TEST_F(StandbyTest, FailsBackOnTheAverageNotOnEveryWindow) {
+    Standby s = make();
+    TimePoint t = t0_ + seconds(1);
+    s.take_report(Wire("mbl:radio", 1000).frame, t);
+    EXPECT_TRUE(s.judge(t));
+    // A 1 % link: windows of 0.4 % to 2.8 %, some above failback_loss (2 %), average 1.3 %.
+    const int32_t windows[] = {4, 28, 8, 24, 12, 8, 20, 4, 16, 8, 4, 28};
+    for (int32_t w : windows) {
+        t += seconds(1);
+        s.take_report(Wire("mbl:radio", w).frame, t);
+        s.judge(t);
+    }
+    EXPECT_FALSE(s.active());
     EXPECT_EQ(1u, s.counters().to_standby);
 }
 
@@ -132,6 +152,11 @@ TEST_F(StandbyTest, MeasuresLossAndSilenceOfWhatItReceives) {
     // Silent after four usual gaps (8 ms), but no sooner than kMinSilence.
     EXPECT_NE(1000, s.measured_permille(0, t + milliseconds(200), t));
     EXPECT_EQ(1000, s.measured_permille(0, t + milliseconds(260), t));
+    // One frame heard: its usual gap unknown, silent only after the longest wait.
+    Standby once = make();
+    once.received(0, StreamStep{0, 0, 0}, t0_ + seconds(1));
+    EXPECT_EQ(0, once.measured_permille(0, t0_ + seconds(3), t0_ + seconds(1)));
+    EXPECT_EQ(1000, once.measured_permille(0, t0_ + seconds(5), t0_ + seconds(1)));
     // Too few frames to judge: only silence counts.
     Standby sparse = make();
     sparse.received(0, StreamStep{0, 0, 0}, t0_ + seconds(1));
