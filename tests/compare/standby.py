@@ -129,6 +129,7 @@ def run_condition(mavbond: str, plugin_dir: str, name: str, scale: float, workdi
     for g in gateways:
         g.stop()
     sent = {f for _, f in frames}
+    index = {f: i for i, (_, f) in enumerate(frames)}
     out = {"title": title, "seconds": seconds, "n": len(frames), "modes": {}}
     for m in MODES:
         got = [f for f in receivers[m].stop() if tlog.sysid(f) == 1 and tlog.compid(f) == 1]
@@ -139,6 +140,8 @@ def run_condition(mavbond: str, plugin_dir: str, name: str, scale: float, workdi
         radio = counters[f"radio_{m}"]["up"]
         out["modes"][m] = {
             "delivered": len(seen), "duplicates": sum(seen.values()) - len(seen),
+            # which messages came twice, and how far apart in the stream (frames)
+            "duplicated": [[tlog.msgid(f), index[f]] for f, k in seen.items() if k > 1],
             "delivered_loss": 1 - len(seen) / len(frames),
             "lte_bytes": lte_bytes, "lte_bytes_per_hour": lte_bytes / seconds * 3600,
             "radio_loss": 1 - radio["forwarded"] / radio["received"] if radio["received"] else 0,
@@ -204,7 +207,11 @@ def main() -> int:
     ap.add_argument("--plugin-dir", default=str(REPO / "build" / "plugins"))
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--workdir", help="keep the gateways' logs here (default: a temporary one)")
+    ap.add_argument("--only", help="comma-separated conditions (default: all)")
     args = ap.parse_args()
+    if args.only:
+        for name in set(CONDITIONS) - set(args.only.split(",")):
+            del CONDITIONS[name]
     with tempfile.TemporaryDirectory(prefix="mavbond-standby-") as d:
         raw = run(args.mavbond, args.plugin_dir, args.scale, Path(args.workdir or d))
     print("\n".join(report_lines(raw)))
