@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstring>
+#include <deque>
 #include <string>
 #include <vector>
 
@@ -15,8 +16,11 @@ namespace {
 
 constexpr uint32_t kHeartbeat = 0, kAttitude = 30, kFtp = 110;
 
-/// A NAMED_VALUE_INT as a peer sends it, parsed back as the router gets it.
+/// A NAMED_VALUE_INT as a peer sends it, parsed back as the router gets it (the frame's spans
+/// point into buf: a Wire never moves).
 struct Wire {
+    Wire(const Wire&) = delete;
+    Wire& operator=(const Wire&) = delete;
     std::array<uint8_t, kMaxFrameLen> buf{};
     Frame frame;
     Wire(const std::string& name, int32_t value, uint8_t seq = 0) {
@@ -187,7 +191,7 @@ TEST_F(StandbyTest, ReportsGoEverySecondAndAtOnceOnAChange) {
 TEST_F(StandbyTest, HeldFramesOfTheResendWindowGoOldestFirstOnce) {
     bond_.resend = seconds(1);
     Standby s = make();
-    std::vector<Wire> frames;
+    std::deque<Wire> frames;  // emplace_back moves none already there
     for (uint8_t i = 0; i < 30; i++)
         frames.emplace_back("mbl:x", i, i);
     for (uint8_t i = 0; i < 30; i++) {
