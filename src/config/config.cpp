@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -147,6 +148,17 @@ std::optional<uint32_t> message_id(const std::string& text) {
 std::string message_label(uint32_t id) {
     const MessageInfo* info = find_message(id);
     return info ? std::string(info->name) + " (" + std::to_string(id) + ")" : std::to_string(id);
+}
+
+/// "10%" -> 0.10: a percentage from 0 to 100, the % required.
+std::optional<double> parse_percent(const std::string& text) {
+    if (text.size() < 2 || text.back() != '%')
+        return std::nullopt;
+    char* end = nullptr;
+    double v = strtod(text.c_str(), &end);
+    if (end != text.c_str() + text.size() - 1 || !std::isfinite(v) || v < 0 || v > 100)
+        return std::nullopt;
+    return v / 100.0;
 }
 
 /// What a link with a budget spends it on first, when the file has no `tx_classes:`
@@ -306,6 +318,7 @@ private:
     void parse_tx_rate(const Entry& e, const std::string& ctx, const EndpointSchema& type,
                        TxBudgetConfig& budget) const;
     void parse_tx_classes(const Entry& section, TxClassesConfig& classes) const;
+    double percent(const Entry& e, const std::string& ctx) const;
     void parse_bond(const YAML::Node& node, size_t index);
     void parse_filter(const YAML::Node& node, size_t index);
     void parse_identity(const Entry& section);
@@ -321,6 +334,12 @@ private:
     std::map<std::string, YAML::Mark> bond_names_;
     std::vector<BondRef> bond_refs_;
     std::vector<BondRef> radio_refs_;  // endpoints with `radio_status`: each must be in a bond
+    struct StandbyRef {
+        std::string bond;
+        std::string key;
+        YAML::Mark mark;
+    };
+    std::vector<StandbyRef> standby_refs_;  // standby keys given: their bond needs a metered member
     std::vector<ScopeRef> scope_refs_;
 };
 
@@ -516,6 +535,7 @@ Config Parser::parse(const YAML::Node& root) {
         if (ep.tx_budget.enabled())
             ep.tx_budget.classes = classes;
     }
+    config_.tx_classes = std::move(classes);
     cross_check();
     return std::move(config_);
 }
@@ -570,9 +590,9 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kCommonKeys = {"name", "type", "tx_queue",
                                                            "allow_out", "block_out"};
     // A recorder (a flight log) takes none of these: nothing comes from it, and it has no line.
-    static const std::set<std::string_view> kReceiverKeys = {"allow_in", "block_in", "bond",
-                                                             "signing", "tx_rate",
-                                                             "radio_status"};
+    static const std::set<std::string_view> kReceiverKeys = {
+        "allow_in", "block_in", "bond", "signing", "tx_rate", "radio_status", "cost",
+        "standby_carries"};
     std::string ctx = "endpoint #" + std::to_string(index) + ": ";
     if (!node.IsMap())
         fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
@@ -682,6 +702,32 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
         parse_radio_status(*e, ctx, type, ep.tx_budget);
         radio_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*e)});
     }
+    // Standby: cost and standby_carries.
+    const Entry* cost = view.find("cost");
+    if (cost)
+        ep.metered = choice<bool>(*cost, ctx, {{"free", false}, {"metered", true}});
+    const Entry* carries = view.find("standby_carries");
+    if (carries) {
+        ep.standby_classes = 0;
+        for (const auto& [word, mark] : name_list(*carries, ctx)) {
+            size_t c = 0;
+            while (c < kTxClassCount && word != kTxClassNames[c])
+                c++;
+            if (c == kTxClassCount)
+                fail(mark, ctx + "'standby_carries': unknown class '" + word +
+                               "' (allowed: control, telemetry, bulk)");
+            ep.standby_classes |= static_cast<uint8_t>(1u << c);
+        }
+        if (ep.standby_classes == 0)
+            fail(value_mark(*carries), ctx + "'standby_carries' must name at least one class");
+    }
+    // Standby is a bond's way of using a member: outside a bond there is nothing to stand by for.
+    const Entry* stray = ep.metered ? cost : carries;
+    if (stray && ep.bond.empty())
+        fail(stray->key.Mark(), ctx + "'" + stray->name + "' needs 'bond': standby applies to a "
+                                      "bond member");
+    if (carries && !ep.metered)
+        fail(carries->key.Mark(), ctx + "'standby_carries' applies only with 'cost: metered'");
     config_.endpoints.push_back(std::move(ep));
 }
 
@@ -787,7 +833,8 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
                                              "' (allowed characters: A-Z a-z 0-9 _ . -)");
     }
     ctx = "bond '" + bond.name + "': ";
-    static const std::set<std::string_view> kKeys = {"name", "tx", "renumber"};
+    static const std::set<std::string_view> kKeys = {
+        "name", "tx", "renumber", "failover_loss", "failback_loss", "failback_after", "resend"};
     check_keys(view, ctx, &kKeys);
     if (auto [it, inserted] = bond_names_.emplace(bond.name, name_entry.value.Mark());
         !inserted) {
@@ -804,8 +851,41 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
         bond.renumber = boolean(*e, ctx);
         bond.renumber_mark = source_mark(value_mark(*e));
     }
+    // Standby: when a metered member leaves it and comes back.
+    if (const Entry* e = view.find("failover_loss"))
+        bond.failover_loss = percent(*e, ctx);
+    if (const Entry* e = view.find("failback_after"))
+        bond.failback_after = duration(*e, ctx, false);
+    if (const Entry* e = view.find("resend")) {
+        bond.resend = duration(*e, ctx, false);
+        if (bond.resend > seconds(10))
+            fail(value_mark(*e), ctx + "'resend': at most 10s (what standby held back is kept "
+                                       "that long)");
+    }
+    if (const Entry* e = view.find("failback_loss")) {
+        bond.failback_loss = percent(*e, ctx);
+        if (bond.failback_loss >= bond.failover_loss)
+            fail(value_mark(*e), ctx + "'failback_loss' must be below 'failover_loss' (" +
+                                     std::to_string(static_cast<int>(bond.failover_loss * 100 + 0.5)) +
+                                     "%): the gap between them keeps standby from flapping");
+    }
+    for (const char* key : {"failover_loss", "failback_loss", "failback_after", "resend"}) {
+        if (const Entry* e = view.find(key))
+            standby_refs_.push_back(StandbyRef{bond.name, key, e->key.Mark()});
+    }
     config_.bonds.push_back(std::move(bond));
 }
+
+double Parser::percent(const Entry& e, const std::string& ctx) const {
+    const std::string& text = scalar(e, ctx);
+    auto v = parse_percent(text);
+    if (!v)
+        fail(value_mark(e), ctx + "'" + e.name + "': '" + text +
+                                "' is not a percentage from 0% to 100% (e.g. 10%)");
+    return *v;
+}
+
+
 
 void Parser::parse_metrics(const Entry& entry) {
     const std::string ctx = "metrics: ";
@@ -1063,6 +1143,22 @@ void Parser::cross_check() {
             fail(bond_names_.at(bond.name),
                  "bond '" + bond.name + "' has no member endpoint (set 'bond: " + bond.name +
                      "' on at least one endpoint)");
+    }
+    for (const auto& bond : config_.bonds) {
+        bool metered = false, free = false;
+        for (const auto& ep : config_.endpoints) {
+            if (ep.bond == bond.name)
+                (ep.metered ? metered : free) = true;
+        }
+        for (const auto& ref : standby_refs_) {
+            if (ref.bond == bond.name && !metered)
+                fail(ref.mark, "bond '" + bond.name + "': '" + ref.key +
+                                   "' applies only to a bond with a 'cost: metered' member");
+        }
+        if (metered && !free)
+            fail(bond_names_.at(bond.name),
+                 "bond '" + bond.name + "': every member is 'cost: metered'; standby needs a "
+                 "free member to stand by for");
     }
     for (const auto& ref : scope_refs_) {
         bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0
@@ -1477,6 +1573,14 @@ bool same_settings(const std::vector<BondConfig>& a, const std::vector<BondConfi
 }
 bool same_settings(const std::vector<FilterConfig>& a, const std::vector<FilterConfig>& b) {
     return same_unmarked(a, b);
+}
+
+TxClass TxClassesConfig::class_of(uint32_t msgid) const {
+    if (std::binary_search(control.begin(), control.end(), msgid))
+        return TxClass::Control;
+    if (std::binary_search(bulk.begin(), bulk.end(), msgid))
+        return TxClass::Bulk;
+    return TxClass::Telemetry;
 }
 
 }  // namespace mavbond

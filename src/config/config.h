@@ -49,10 +49,17 @@ struct SigningConfig {
 /// at once, always; telemetry (every message in neither list) waits for the budget, the newest
 /// sample of each message from each source (and instance) winning, each at most at its cap; bulk waits in
 /// order behind telemetry.
+/// A message's class on a link with a budget or in standby, named by kTxClassNames.
+enum class TxClass : uint8_t { Control, Telemetry, Bulk };
+constexpr size_t kTxClassCount = 3;
+constexpr const char* kTxClassNames[kTxClassCount] = {"control", "telemetry", "bulk"};
+
 struct TxClassesConfig {
     std::vector<uint32_t> control;  // sorted
     std::vector<uint32_t> bulk;     // sorted
     std::vector<std::pair<uint32_t, Duration>> caps;  // message id, least interval; sorted
+    /// The class of message `msgid`: what a budget and a metered link's standby both go by.
+    TxClass class_of(uint32_t msgid) const;
     bool operator==(const TxClassesConfig&) const = default;
 };
 
@@ -87,6 +94,11 @@ struct EndpointConfig {
     MessageFilterConfig filter_out;          // keys allow_out / block_out
     std::string bond;                        // bond name ("" = none)
     SigningConfig signing;                   // key `signing`
+    /// `cost: metered`: a bond member paid by the byte, in standby while the free members
+    /// are healthy (routing/standby.h).
+    bool metered = false;
+    /// `standby_carries:` the classes (bit per TxClass) a metered member carries in standby.
+    uint8_t standby_classes = 1u << static_cast<unsigned>(TxClass::Control);
     SourceMark mark;                         // where this endpoint was declared
     bool operator==(const EndpointConfig&) const = default;
 };
@@ -100,6 +112,12 @@ struct BondConfig {
     /// content; the filter chain checks it; see src/routing/renumber.h).
     bool renumber = false;
     SourceMark renumber_mark;  // where `renumber` is set
+    /// When a metered member (`cost: metered`) leaves standby and comes back
+    /// (routing/standby.h): the free members' loss as the peer reports it.
+    double failover_loss = 0.10;      // `failover_loss`: active when every free link is above
+    double failback_loss = 0.02;      // `failback_loss`: standby again once one is below...
+    Duration failback_after = seconds(10);  // `failback_after`: ...for this long
+    Duration resend = seconds(1);     // `resend`: frames standby held back, resent on failover
     bool operator==(const BondConfig&) const = default;
 };
 
@@ -162,6 +180,7 @@ struct Config {
     std::string status_socket;                     // "" = none
     std::vector<EndpointConfig> endpoints;
     std::vector<BondConfig> bonds;
+    TxClassesConfig tx_classes;                    // the file's `tx_classes:` (or the defaults)
     std::vector<FilterConfig> filters;
     IdentityConfig identity;
     LinkEventsConfig link_events;

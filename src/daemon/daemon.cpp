@@ -3,6 +3,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <tuple>
 
 #include "core/log.h"
 #include "mavbond_build_config.h"
@@ -16,13 +17,14 @@ namespace {
 constexpr Duration kExitFinishBound = milliseconds(500);
 constexpr Duration kReloadFinishBound = milliseconds(50);
 
-/// Each bonded endpoint's (name, bond), in config order: the filters number a bond's links
-/// by this order, so a change in it restarts them.
-std::vector<std::pair<std::string, std::string>> bond_members(const Config& c) {
-    std::vector<std::pair<std::string, std::string>> out;
+/// Each bonded endpoint's (name, bond, standby), in config order: the filters number a bond's
+/// links by this order, so a change in it restarts them; a bond is rebuilt with them, so a
+/// change in a member's cost or standby classes (or in the classes) rebuilds it too.
+std::vector<std::tuple<std::string, std::string, bool, uint8_t>> bond_members(const Config& c) {
+    std::vector<std::tuple<std::string, std::string, bool, uint8_t>> out;
     for (const auto& ep : c.endpoints) {
         if (!ep.bond.empty())
-            out.emplace_back(ep.name, ep.bond);
+            out.emplace_back(ep.name, ep.bond, ep.metered, ep.standby_classes);
     }
     return out;
 }
@@ -31,7 +33,8 @@ std::vector<std::pair<std::string, std::string>> bond_members(const Config& c) {
 /// bonds, the order of the bonds' links, the plugin directory).
 bool filters_must_restart(const Config& old, const Config& next) {
     return !same_settings(old.bonds, next.bonds) || !same_settings(old.filters, next.filters) ||
-           bond_members(old) != bond_members(next) || old.plugin_dir != next.plugin_dir;
+           bond_members(old) != bond_members(next) || old.plugin_dir != next.plugin_dir ||
+           !(old.tx_classes == next.tx_classes);
 }
 
 /// This process's peak resident set (VmHWM), in KiB; -1 when /proc does not say. Not
@@ -68,6 +71,7 @@ Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Confi
 Daemon::~Daemon() {
     link_events_.reset();
     radio_report_.reset();
+    standby_.reset();
     // Endpoints go away because the daemon stops, not because links fail: the filters must
     // not take it for an outage (a link switch logged at every shutdown).
     router_.set_filter(nullptr);
@@ -108,8 +112,10 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
 
 void Daemon::start_local_source(bool identity_changed) {
     link_events_.reset();
+    standby_.reset();
     if (identity_changed || !local_source_)
         local_source_ = std::make_unique<LocalSource>(config_->identity, loop_, router_);
+    standby_ = std::make_unique<StandbyMonitor>(router_, loop_, *local_source_);
     if (config_->link_events.enabled)
         link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, router_, loop_,
                                                           *local_source_);
@@ -365,6 +371,19 @@ Status Daemon::status() const {
         if (const auto* r = radio_report_ ? radio_report_->find(bond.name()) : nullptr) {
             out.radio_status_sent = r->sent;
             out.radio_status_last = r->last;
+        }
+        if (const Standby* standby = bond.standby()) {
+            out.has_standby = true;
+            out.standby_active = standby->active();
+            out.standby = standby->counters();
+            for (const Standby::PeerLink& l : standby->peer_links())
+                out.peer_loss.emplace_back(l.name, l.permille);
+            for (LinkId id = 0; id < router_.link_id_bound(); id++) {
+                const Link* link = router_.link(id);
+                if (link && router_.bond_of(*link) == b && router_.member_of(*link) != Bond::kNoMember &&
+                    standby->metered(router_.member_of(*link)))
+                    out.metered_tx_bytes += link->counters().tx_bytes;
+            }
         }
     }
     s.frames_routed = router_.frames_routed();

@@ -22,6 +22,7 @@
 #include "routing/link_events.h"
 #include "routing/local_source.h"
 #include "routing/router.h"
+#include "routing/standby.h"
 
 namespace mavbond {
 
@@ -98,6 +99,7 @@ private:
     std::unique_ptr<LocalSource> local_source_;
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
     std::unique_ptr<RadioStatusReporter> radio_report_;  // reads endpoints_ at each report
+    std::unique_ptr<StandbyMonitor> standby_;        // remade with it: reports of the bonds
     std::unique_ptr<StatusSocket> status_;
     std::unique_ptr<MetricsHttpServer> metrics_;
     ProblemReport report_;

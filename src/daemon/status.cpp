@@ -156,6 +156,23 @@ std::string status_json(const Status& s) {
             out += ",\"radio_status\":{\"sent\":" + std::to_string(b.radio_status_sent) +
                    ",\"foreign\":" + std::to_string(b.foreign_radio_status) + ",\"last\":" +
                    (b.radio_status_last ? report_json(*b.radio_status_last) : "null") + "}";
+        if (b.has_standby) {
+            const Standby::Counters& c = b.standby;
+            out += std::string(",\"standby\":{\"state\":\"") +
+                   (b.standby_active ? "active" : "standby") +
+                   "\",\"metered_tx_bytes\":" + std::to_string(b.metered_tx_bytes) +
+                   ",\"to_active\":" + std::to_string(c.to_active) +
+                   ",\"to_standby\":" + std::to_string(c.to_standby) +
+                   ",\"withheld\":" + std::to_string(c.withheld) +
+                   ",\"resent\":" + std::to_string(c.resent) +
+                   ",\"reports_sent\":" + std::to_string(c.reports_sent) +
+                   ",\"reports_received\":" + std::to_string(c.reports_received) +
+                   ",\"peer_loss_permille\":{";
+            for (size_t k = 0; k < b.peer_loss.size(); k++)
+                out += std::string(k ? "," : "") + "\"" + b.peer_loss[k].first +
+                       "\":" + std::to_string(b.peer_loss[k].second);
+            out += "}}";
+        }
         out += "}";
     }
     out += "],\"filters\":[";
@@ -256,6 +273,34 @@ MetricSet status_metrics(const Status& s) {
                 set.gauge("mavbond_bond_radio_txbuf",
                           "The txbuf of the last RADIO_STATUS sent for the bond, percent.",
                           b.radio_status_last->txbuf, {{"bond", b.name}});
+        }
+        if (b.has_standby) {
+            const Standby::Counters& c = b.standby;
+            const MetricLabels bond{{"bond", b.name}};
+            set.gauge("mavbond_standby_active",
+                      "1 while a bond's metered links carry everything, 0 in standby.",
+                      b.standby_active ? 1 : 0, bond);
+            set.counter("mavbond_standby_metered_tx_bytes",
+                        "Bytes sent on a bond's metered links (cost: metered).", b.metered_tx_bytes,
+                        bond);
+            set.counter("mavbond_standby_to_active",
+                        "Times a bond's metered links left standby (the free links failing).",
+                        c.to_active, bond);
+            set.counter("mavbond_standby_to_standby",
+                        "Times a bond's metered links went back to standby.", c.to_standby, bond);
+            set.counter("mavbond_standby_withheld",
+                        "Frames standby kept off a metered link.", c.withheld, bond);
+            set.counter("mavbond_standby_resent",
+                        "Frames standby held back and sent on a metered link when it went active.",
+                        c.resent, bond);
+            set.counter("mavbond_standby_reports_sent",
+                        "Link loss reports sent to the peer (NAMED_VALUE_INT).", c.reports_sent, bond);
+            set.counter("mavbond_standby_reports_received",
+                        "Link loss reports received from the peer.", c.reports_received, bond);
+            for (const auto& [link, permille] : b.peer_loss)
+                set.gauge("mavbond_standby_peer_loss_ratio",
+                          "A free link's loss as the peer last reported it (1: silent).",
+                          permille / 1000.0, {{"bond", b.name}, {"link", link}});
         }
     }
     set.declare(kFilterDroppedMetric, kFilterDroppedHelp, MetricSet::Type::Counter);

@@ -9,6 +9,8 @@
 #include <utility>
 #include <vector>
 
+#include "routing/standby.h"
+
 #include "core/clock.h"
 #include "core/metric_set.h"
 #include "endpoints/endpoint.h"
@@ -43,6 +45,12 @@ struct Status {
         uint64_t foreign_radio_status = 0;       // others' RADIO_STATUS dropped on its members
         uint64_t radio_status_sent = 0;          // its own sent to the local side
         std::optional<RadioReport> radio_status_last;  // the last of them
+        /// With a metered member (routing/standby.h): its state and counters.
+        bool has_standby = false;
+        bool standby_active = false;
+        uint64_t metered_tx_bytes = 0;  // sent on the metered members' links, every frame
+        Standby::Counters standby;
+        std::vector<std::pair<std::string, int32_t>> peer_loss;  // free link (peer's name), per mille
     };
 
     TimePoint taken;

@@ -37,14 +37,6 @@ void TxBudget::set_rate(uint64_t bytes_per_s, TimePoint now) {
     tokens_ = std::min(tokens_, burst_);
 }
 
-TxClass TxBudget::classify(uint32_t msgid) const {
-    if (std::binary_search(classes_.control.begin(), classes_.control.end(), msgid))
-        return TxClass::Control;
-    if (std::binary_search(classes_.bulk.begin(), classes_.bulk.end(), msgid))
-        return TxClass::Bulk;
-    return TxClass::Telemetry;
-}
-
 void TxBudget::refill(TimePoint now) {
     if (!started_) {
         started_ = true;
@@ -115,7 +107,7 @@ TxBudget::Slot* TxBudget::slot_for(const Frame& frame) {
 bool TxBudget::offer(const Frame& frame, TimePoint now) {
     refill(now);
     const size_t len = frame.bytes.size();
-    const TxClass c = classify(frame.msgid);
+    const TxClass c = classes_.class_of(frame.msgid);
     if (c == TxClass::Control) {
         charge(c, len, false);
         return true;

@@ -29,9 +29,6 @@
 
 namespace mavbond {
 
-/// The classes in the order of kTxClassNames (routing/link.h).
-enum class TxClass : uint8_t { Control, Telemetry, Bulk };
-
 class TxBudget {
 public:
     /// `bytes_per_s`: the line's rate; `overhead`: bytes charged per frame beyond its own;
@@ -39,8 +36,6 @@ public:
     /// `counters`: where it counts, per class (the link's own).
     TxBudget(uint64_t bytes_per_s, uint32_t overhead, const TxClassesConfig& classes,
              size_t bulk_capacity, std::array<TxClassCounters, kTxClassCount>& counters);
-
-    TxClass classify(uint32_t msgid) const;
 
     /// A frame to send at `now`: true when it may go now (charged), false when it was held
     /// (copied) for release().

@@ -155,6 +155,17 @@ void print_table(const pt::ptree& doc) {
                        b.get("name", "").c_str(), r->get("renumbered", "0").c_str(),
                        r->get("gaps", "0").c_str(), r->get("late_filled", "0").c_str(),
                        r->get("signed_left_alone", "0").c_str());
+            if (auto sb = b.get_child_optional("standby")) {
+                std::string peer;
+                for (const auto& [link, permille] : sb->get_child("peer_loss_permille", {}))
+                    peer += " " + link + " " + fmt_pct(permille.get_value<double>() / 10.0);
+                printf("standby %s: metered links %s, %s bytes sent on them; %s to active, %s back "
+                       "to standby; %s frames withheld, %s resent; peer reports%s\n",
+                       b.get("name", "").c_str(), sb->get("state", "").c_str(),
+                       sb->get("metered_tx_bytes", "0").c_str(), sb->get("to_active", "0").c_str(),
+                       sb->get("to_standby", "0").c_str(), sb->get("withheld", "0").c_str(),
+                       sb->get("resent", "0").c_str(), peer.empty() ? " none" : peer.c_str());
+            }
         }
     }
     for (const auto& [_, f] : doc.get_child("filters", {})) {

@@ -6,12 +6,20 @@
 
 namespace mavbond {
 
-Bond::Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints)
+Bond::Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints,
+           const TxClassesConfig& classes, TimePoint now)
     : name_(config.name), tx_active_(config.tx == BondConfig::Tx::Active) {
+    std::vector<const EndpointConfig*> member_configs;
+    bool metered = false;
     for (const auto& ep : endpoints) {
-        if (ep.bond == name_)
+        if (ep.bond == name_) {
             members_.push_back(ep.name);
+            member_configs.push_back(&ep);
+            metered = metered || ep.metered;
+        }
     }
+    if (metered)
+        standby_ = std::make_unique<Standby>(config, member_configs, classes, now);
     last_heard_.assign(members_.size(), TimePoint{});
     if (config.renumber)
         renumberer_ = std::make_unique<SeqRenumberer>();

@@ -17,6 +17,7 @@
 #include "routing/frame_sink.h"
 #include "routing/link.h"
 #include "routing/renumber.h"
+#include "routing/standby.h"
 
 namespace mavbond {
 
@@ -24,8 +25,10 @@ class Bond {
 public:
     static constexpr uint32_t kNoMember = UINT32_MAX;
 
-    /// The bond `config` declares, with the endpoints of `endpoints` that name it as members.
-    Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints);
+    /// The bond `config` declares, with the endpoints of `endpoints` that name it as members;
+    /// `classes`: what standby goes by when a member is metered; `now`: when it starts.
+    Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoints,
+         const TxClassesConfig& classes, TimePoint now);
 
     const std::string& name() const { return name_; }
     bool tx_active() const { return tx_active_; }
@@ -54,6 +57,9 @@ public:
         // rather than on none.
         return !tx_active_ || active_link_ == kNoLink || active_link_ == to;
     }
+    /// The standby of its metered members (routing/standby.h); nullptr when none is metered.
+    Standby* standby() { return standby_.get(); }
+    const Standby* standby() const { return standby_.get(); }
 
     /// Whether a member's radio reports for the bond (`radio_status`): then mavbond speaks
     /// RADIO_STATUS for the bond, and any other RADIO_STATUS that comes in on a member (a far
@@ -113,6 +119,7 @@ private:
     LinkId active_link_ = kNoLink;
     uint64_t switches_ = 0;
     std::unique_ptr<SeqRenumberer> renumberer_;  // nullptr: the bond does not renumber
+    std::unique_ptr<Standby> standby_;           // nullptr: no member is metered
     uint64_t signed_left_alone_ = 0;
 };
 

@@ -140,7 +140,6 @@ void FilterChain::on_link(const Link& link, bool added) {
         v.link.bond_name = bond == Router::kNoBond ? nullptr : router_.bonds()[bond].name().c_str();
         // Priority: the place among the bond's members in the config (peers share theirs).
         v.link.priority = bond == Router::kNoBond ? 0 : router_.member_of(link);
-        v.positions.clear();
         v.scope_mask = 0;
         for (size_t i = 0; i < instances_.size(); i++) {
             if (instances_[i]->config->in_scope(link.bond(), link.endpoint_name()))
@@ -189,7 +188,7 @@ void FilterChain::on_ingress(ReceivedFrame* const* frames, size_t count, Ingress
 
 void FilterChain::filter_chunk(ReceivedFrame* const* frames, size_t count, Ingress* out) {
     // The chunk as plugins see it: the frames in any filter's scope, each with its stream
-    // position (tracked once, here, for the frames shown) and its notes.
+    // position (the router's) and its notes.
     size_t shown = 0;
     uint64_t any_scope = 0, all_scope = ~uint64_t{0};
     for (size_t k = 0; k < count; k++) {
@@ -201,7 +200,7 @@ void FilterChain::filter_chunk(ReceivedFrame* const* frames, size_t count, Ingre
         all_scope &= v.scope_mask;
         mavbond_frame& f = c_frames_[shown];
         fill_c_frame(f, r.frame, r.arrival);
-        StreamStep step = v.positions.track(r.frame.sysid, r.frame.compid, r.frame.seq);
+        const StreamStep& step = r.step;
         f.stream_pos = step.pos;
         f.stream_lost = step.lost;
         f.stream_flags = step.flags;

@@ -60,7 +60,6 @@ private:
         std::string name;
         const Link* source = nullptr;  // nullptr: no link has this id now
         uint64_t scope_mask = 0;  // bit i: instance i applies to this link
-        StreamPositions positions;  // of the sources heard on this link
     };
     FilterChain(EventLoop& loop, Router& router);
     static void fill_c_frame(mavbond_frame& f, const Frame& frame, TimePoint rx_time);

@@ -12,6 +12,7 @@
 #include "core/event_loop.h"
 #include "mavlink/frame.h"
 #include "routing/link.h"
+#include "routing/stream_positions.h"
 
 namespace mavbond {
 
@@ -61,6 +62,9 @@ struct ReceivedFrame {
     TimePoint arrival;  // the kernel's receive time (UDP), the read's time (byte streams)
     /// false: the endpoint's allow_in/block_in refused it; routing only learns its source.
     bool routed = true;
+    /// Its place in its source's stream on this link: the router tracks it once, before the
+    /// filters, for every frame it routes (stats, linkswitch, dedup and standby read it).
+    StreamStep step{};
 };
 
 class FrameSink;
@@ -113,7 +117,7 @@ public:
 void ReceivedBatch::add(const Frame& frame, Link& from, TimePoint arrival, bool routed) {
     if (size_ == kCapacity)
         submit();
-    frames_[size_++] = ReceivedFrame{frame, &from, arrival, routed};
+    frames_[size_++] = ReceivedFrame{frame, &from, arrival, routed, {}};
 }
 
 void ReceivedBatch::submit() {

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <string>
 
+#include "config/config.h"
 #include "core/clock.h"
 #include "mavlink/frame.h"
 #include "mavlink/frame_parser.h"
@@ -24,8 +25,6 @@ struct TxClassCounters {
 
     TxClassCounters& operator+=(const TxClassCounters& o);
 };
-constexpr size_t kTxClassCount = 3;
-constexpr const char* kTxClassNames[kTxClassCount] = {"control", "telemetry", "bulk"};
 
 /// Calls f(name, value) for each of a class's counters, in one order.
 template <typename F>

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstring>
 
 #include "core/log.h"
 #include "mavlink/frame_parser.h"
@@ -12,6 +13,7 @@ namespace mavbond {
 namespace {
 constexpr uint32_t kMsgHeartbeat = 0;
 constexpr uint32_t kMsgStatustext = 253;
+constexpr uint32_t kMsgNamedValueInt = 252;
 constexpr uint8_t kTypeOnboardController = 18;  // MAV_TYPE_ONBOARD_CONTROLLER
 constexpr uint8_t kAutopilotInvalid = 8;        // MAV_AUTOPILOT_INVALID: not a flight controller
 constexpr uint8_t kStateActive = 4;             // MAV_STATE_ACTIVE
@@ -44,6 +46,18 @@ void LocalSource::send_statustext(Severity severity, std::string_view text) {
     send(kMsgStatustext, payload.data(), payload.size());
 }
 
+void LocalSource::send_named_value_int(const std::array<char, 10>& name, int32_t value,
+                                       uint32_t bond) {
+    // time_boot_ms (uint32), value (int32), name[10]: little-endian on the wire.
+    std::array<uint8_t, 18> payload{};
+    const auto ms = static_cast<uint32_t>(
+        std::chrono::duration_cast<std::chrono::milliseconds>(loop_.now().time_since_epoch()).count());
+    std::memcpy(payload.data(), &ms, 4);
+    std::memcpy(payload.data() + 4, &value, 4);
+    std::memcpy(payload.data() + 8, name.data(), name.size());
+    send(kMsgNamedValueInt, payload.data(), payload.size(), Router::Reach::to_bond(bond));
+}
+
 bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
                         std::span<const uint8_t> payload, Router::Reach reach) {
     std::array<uint8_t, kMaxFrameLen> buf;
@@ -60,9 +74,9 @@ bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
     return true;
 }
 
-void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len) {
+void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len, Router::Reach reach) {
     if (!inject_local_frame(router_, FrameSource{identity_.sysid, identity_.compid, seq_}, msgid,
-                            std::span<const uint8_t>(payload, len), Router::Reach::Everywhere))
+                            std::span<const uint8_t>(payload, len), reach))
         return;
     seq_++;
     frames_sent_++;

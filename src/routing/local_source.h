@@ -4,6 +4,7 @@
 // component and not as a vehicle.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <span>
 #include <string_view>
@@ -33,11 +34,13 @@ public:
     void send_heartbeat();
     /// One STATUSTEXT; text beyond STATUSTEXT's 50 characters is cut.
     void send_statustext(Severity severity, std::string_view text);
+    /// One NAMED_VALUE_INT to the member links of bond `bond` only (a standby report).
+    void send_named_value_int(const std::array<char, 10>& name, int32_t value, uint32_t bond);
 
     uint64_t frames_sent() const { return frames_sent_; }
 
 private:
-    void send(uint32_t msgid, const uint8_t* payload, size_t len);
+    void send(uint32_t msgid, const uint8_t* payload, size_t len, Router::Reach reach = {});
 
     const IdentityConfig identity_;  // a copy: a reload replaces the Config
     EventLoop& loop_;

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "core/log.h"
+#include "mavlink/frame_parser.h"
 #include "mavlink/radio_status.h"
 
 namespace mavbond {
@@ -18,6 +19,7 @@ void Router::attach(Link& link) {
     link.id_ = static_cast<LinkId>(free_slot - slots_.begin());
     free_slot->link = &link;
     free_slot->routes.clear();
+    free_slot->positions.clear();
     place_links();
     if (link.records_everything())
         recorders_.push_back(&link);
@@ -117,7 +119,7 @@ void Router::replace_bonds(const Config& config) {
     merge_round(true);
     bonds_.clear();
     for (const auto& b : config.bonds)
-        bonds_.emplace_back(b, config.endpoints);
+        bonds_.emplace_back(b, config.endpoints, config.tx_classes, loop_.now());
     place_links();
 }
 
@@ -264,6 +266,12 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
     if (count == 0)
         return;
     verdicts_.assign(count, FrameFilter::Ingress{});
+    // Each frame's place in its source's stream on its link, once, for the filters and standby.
+    for (size_t i = 0; i < count; i++) {
+        ReceivedFrame& r = *frames[i];
+        if (r.routed)
+            r.step = slots_[r.from->id()].positions.track(r.frame.sysid, r.frame.compid, r.frame.seq);
+    }
     if (filter_)
         filter_->on_ingress(frames, count, verdicts_.data());
     for (size_t i = 0; i < count; i++) {
@@ -273,6 +281,8 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
         if (r.frame.crc_checked)
             learn(from, r.frame.sysid, r.frame.compid, r.arrival);
         if (!r.routed)
+            continue;
+        if (from.bond != kNoBond && standby_sees(from, r))
             continue;
         const FrameFilter::Ingress& v = verdicts_[i];
         bool pass = v.pass;
@@ -288,6 +298,32 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
     }
 }
 
+bool Router::standby_sees(const Slot& from, const ReceivedFrame& r) {
+    Standby* standby = bonds_[from.bond].standby();
+    if (!standby)
+        return false;
+    standby->received(from.member, r.step, r.arrival);
+    if (!standby->take_report(r.frame, r.arrival))
+        return false;
+    // A report may say the free links are failing: act on it at once, not at the next tick.
+    judge_standby(from.bond, r.arrival);
+    return true;
+}
+
+void Router::judge_standby(uint32_t bond, TimePoint now) {
+    Standby& standby = *bonds_[bond].standby();
+    const uint64_t to_standby = standby.counters().to_standby;
+    if (standby.judge(now)) {
+        uint64_t resent = resend_held(bond, now);
+        log_notice("bond %s: metered links active (the free links are failing); %llu frames "
+                   "standby held back resent",
+                   bonds_[bond].name().c_str(), static_cast<unsigned long long>(resent));
+    } else if (standby.counters().to_standby != to_standby) {
+        log_notice("bond %s: metered links back in standby (the free links are healthy)",
+                   bonds_[bond].name().c_str());
+    }
+}
+
 void Router::deliver(const Frame& frame, Slot& to) {
     if (filter_ && !filter_->on_egress(frame, *to.link))
         return;
@@ -298,7 +334,7 @@ void Router::deliver(const Frame& frame, Slot& to) {
 void Router::deliver_to_recorders(const Slot& from, const Frame& frame) {
     for (Link* to : recorders_) {
         Slot& s = slots_[to->id()];
-        if (may_send(from, s))
+        if (may_send(from, s, frame))
             deliver(frame, s);
     }
 }
@@ -321,7 +357,7 @@ void Router::route(const ReceivedFrame& received) {
                 if (!target_knows(to, ts, want_comp))
                     continue;
                 found = true;
-                if (bond_lets_send(to))
+                if (bond_lets_send(to, frame))
                     deliver(frame, to);
             }
             if (found) {
@@ -334,7 +370,7 @@ void Router::route(const ReceivedFrame& received) {
     }
     bool any = false;
     for (Slot& to : slots_) {
-        if (to.link && may_send(from, to)) {
+        if (to.link && may_send(from, to, frame)) {
             deliver(frame, to);
             any = true;
         }
@@ -345,9 +381,21 @@ void Router::route(const ReceivedFrame& received) {
 
 void Router::inject(const Frame& frame, Reach reach) {
     for (Slot& to : slots_) {
-        if (!to.link || (reach == Reach::OutsideBonds && to.bond != kNoBond))
+        if (!to.link)
             continue;
-        if (bond_lets_send(to))
+        bool sends = false;
+        switch (reach.kind) {
+        case Reach::Everywhere:
+            sends = bond_lets_send(to, frame);
+            break;
+        case Reach::OutsideBonds:
+            sends = to.bond == kNoBond;
+            break;
+        case Reach::OneBond:
+            sends = to.bond == reach.bond;
+            break;
+        }
+        if (sends)
             deliver(frame, to);
     }
     end_batch();
@@ -361,6 +409,31 @@ void Router::mark_radio_status_bonds(const Config& config) {
                        ep.tx_budget.radio_status != RadioStatusSource::None;
             });
     }
+}
+
+uint64_t Router::resend_held(uint32_t bond, TimePoint now) {
+    Standby* standby = bond < bonds_.size() ? bonds_[bond].standby() : nullptr;
+    if (!standby)
+        return 0;
+    uint64_t sent = 0;
+    standby->take_held(now, [&](uint32_t member, std::span<const uint8_t> bytes) {
+        // Parsed back as it came (it was a routed frame): the links take a Frame.
+        ParserCounters counters;
+        DatagramParser parser(bytes, UnknownIdPolicy::Forward, counters);
+        Frame frame;
+        if (!parser.next(frame))
+            return;
+        for (Slot& to : slots_) {
+            if (to.link && to.bond == bond && to.member == member) {
+                deliver(frame, to);
+                sent++;
+            }
+        }
+        // Each frame's bytes live in the ring only until the next: sent before it is reused.
+        end_batch();
+    });
+    standby->counters().resent += sent;
+    return sent;
 }
 
 }  // namespace mavbond

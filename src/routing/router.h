@@ -78,18 +78,32 @@ public:
     /// a bond's frames wait for a socket still to be read.
     TimePoint arrival_clock(TimePoint now) const;
     /// Where a frame mavbond made itself goes.
-    enum class Reach {
-        Everywhere,    // every link the bonds' tx policy lets send
-        OutsideBonds,  // the local side only: every link in no bond (a bond's RADIO_STATUS)
+    struct Reach {
+        enum Kind {
+            Everywhere,    // every link the bonds' tx policy lets send
+            OutsideBonds,  // the local side only: every link in no bond (a bond's RADIO_STATUS)
+            OneBond,       // every member of `bond`, whatever its tx policy or standby (a
+                           // standby report must go over every link, the metered one too)
+        };
+        Reach(Kind kind = Everywhere, uint32_t bond = kNoBond) : kind(kind), bond(bond) {}
+        static Reach to_bond(uint32_t bond) { return {OneBond, bond}; }
+        Kind kind;
+        uint32_t bond;
     };
     /// Sends a frame mavbond made itself (its own HEARTBEAT, STATUSTEXT) as a local source:
     /// to the links `reach` names, through the egress filters; nothing is learned and no
     /// ingress filter sees it. Flushes before returning, so the bytes need only live for the
     /// call (call it from a timer, not from inside a receive batch).
-    void inject(const Frame& frame, Reach reach = Reach::Everywhere);
+    void inject(const Frame& frame, Reach reach = Reach());
     /// Marks the bonds whose members' radios report (`radio_status` on one of them): see
     /// Bond::reports_radio_status. Called whenever the endpoints or the bonds change.
     void mark_radio_status_bonds(const Config& config);
+    /// Sends on the metered members of bond `bond` what standby held back from them (it just
+    /// went active); returns how many frames that was.
+    uint64_t resend_held(uint32_t bond, TimePoint now);
+    /// Lets bond `bond`'s standby judge the peer's reports now: logs a change, and on going
+    /// active resends what was held.
+    void judge_standby(uint32_t bond, TimePoint now);
 
     /// Forgets routes not heard for route_timeout.
     void expire_routes(TimePoint now);
@@ -134,6 +148,7 @@ private:
         uint32_t bond = kNoBond;
         uint32_t member = Bond::kNoMember;
         std::vector<Route> routes;
+        StreamPositions positions;  // of the sources heard on this link (ReceivedFrame::step)
     };
 
     const Slot& slot(const Link& link) const { return slots_[link.id()]; }
@@ -154,19 +169,32 @@ private:
     static bool same_target(const Slot& a, const Slot& b) {
         return &a == &b || (a.bond != kNoBond && a.bond == b.bond);
     }
-    /// Whether `to` may send under its bond's tx policy (always, outside a bond).
-    bool bond_lets_send(const Slot& to) const {
-        return to.bond == kNoBond || bonds_[to.bond].lets_send(to.link->id());
+    /// Whether `to` may send `frame` under its bond's tx policy and standby (always, outside
+    /// a bond); a frame standby keeps off a metered member is held for a resend.
+    bool bond_lets_send(const Slot& to, const Frame& frame) {
+        if (to.bond == kNoBond)
+            return true;
+        Bond& bond = bonds_[to.bond];
+        if (!bond.lets_send(to.link->id()))
+            return false;
+        Standby* standby = bond.standby();
+        if (!standby || to.member == Bond::kNoMember || standby->lets_send(to.member, frame.msgid))
+            return true;
+        standby->hold(to.member, frame, frames_routed_, loop_.now());
+        return false;
     }
-    /// Whether `to` may carry a frame from `from`: not the same link or bond, and the bond's
+    /// Whether `to` may carry `frame` from `from`: not the same link or bond, and the bond's
     /// tx policy lets this member send.
-    bool may_send(const Slot& from, const Slot& to) const {
-        return !same_target(from, to) && bond_lets_send(to);
+    bool may_send(const Slot& from, const Slot& to, const Frame& frame) {
+        return !same_target(from, to) && bond_lets_send(to, frame);
     }
     void deliver(const Frame& frame, Slot& to);
     /// A targeted frame that found its target also goes to links that record everything
     /// (they never learn routes, so the targeted path passes them by).
     void deliver_to_recorders(const Slot& from, const Frame& frame);
+    /// Takes in what a bond's standby reads of a received frame; true: it was a standby
+    /// report, consumed here.
+    bool standby_sees(const Slot& from, const ReceivedFrame& r);
 
     EventLoop& loop_;
     Duration route_timeout_;

@@ -8,8 +8,8 @@ Each scenario (scenarios.py) runs in its own worker process (lab.py: real mavbon
 a link emulator, the three modes side by side, every ground gateway frozen on a schedule
 unless --no-stall); at most --jobs at a time (2 on 2 cores: each worker's processes need about
 half a core). The dedup window experiment (window_cost.py), the stale_after sweep
-(stale_after.py) and a slow radio alone with and without a transmit budget (priorities.py) are
-three more jobs. Then the figures (analyze.py) go into OUT/results.md and
+(stale_after.py), a slow radio alone with and without a transmit budget (priorities.py) and
+the slow radio bonded with a metered LTE link (standby.py) are four more jobs. Then the figures (analyze.py) go into OUT/results.md and
 the plots (plots.py) into OUT/*.png. --publish (publish.py) copies the PNGs and results.md, with
 the findings added after its summary, to tests/compare/results/, and rewrites the README's
 "## Results" section, the headline, from this run (or writes it to --readme-out).
@@ -53,7 +53,7 @@ def ms(x) -> str:
 # --- workers ------------------------------------------------------------------------------
 
 # The jobs beside the scenarios, and about how long each takes.
-JOBS = {"window": 45, "stale": 95, "priorities": 140}
+JOBS = {"window": 45, "stale": 95, "priorities": 140, "standby": 150}
 
 
 def worker(args) -> int:
@@ -71,6 +71,9 @@ def worker(args) -> int:
     elif args.worker == "priorities":
         import priorities  # noqa: PLC0415
         raw = priorities.run_pair(args.mavbond, round(60 * args.scale, 1), workdir)
+    elif args.worker == "standby":
+        import standby  # noqa: PLC0415
+        raw = standby.run(args.mavbond, args.plugin_dir, args.scale, workdir)
     else:
         sc = S.get(args.worker)
         sc = dataclasses.replace(sc, seconds=round(sc.seconds * args.scale, 1),
@@ -246,6 +249,7 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
     window = raws.pop("window", None)
     stale = raws.pop("stale", None)
     prio = raws.pop("priorities", None)
+    standby_raw = raws.pop("standby", None)
     mets = {n: analyze.scenario_metrics(r) for n, r in raws.items()}
     stalled = any(r["stall"] for r in raws.values())
     lines = ["# mavbond: dedup vs link switching vs one link", ""]
@@ -301,13 +305,20 @@ def build_report(out: Path, names, runtime: float, args) -> dict:
         lines += ["## A slow radio alone: commands first (tx_rate)", ""]
         lines += priorities.report_lines(prio) + ["", "![priorities](priorities.png)", ""]
         plots.priorities_plot(prio, out / "priorities.png")
+    if standby_raw:
+        import standby  # noqa: PLC0415
+        lines += ["## The radio with a metered LTE link: standby (cost: metered)", ""]
+        lines += standby.report_lines(standby_raw) + ["", "![standby](standby.png)", ""]
+        plots.standby_plot(standby_raw, out / "standby.png")
     (out / "results.md").write_text("\n".join(lines))
     (out / "metrics.json").write_text(json.dumps(
         {"runtime_s": runtime, "window": window, "stale": stale, "priorities": prio,
+         "standby": standby_raw,
          "scenarios": {n: {mo: {k: v for k, v in x.items() if k != "per_second"}
                            for mo, x in m.items()} for n, m in mets.items()}}, indent=1))
     print("\n".join(lines))
-    return {"mets": mets, "window": window, "stale": stale, "priorities": prio, "raws": raws,
+    return {"mets": mets, "window": window, "stale": stale, "priorities": prio,
+            "standby": standby_raw, "raws": raws,
             "summary": summary_rows, "stalled": stalled}
 
 
@@ -343,6 +354,11 @@ def checks(rep) -> list:
                     f"{b['no_ack']} of {b['commands']} without an ack, "
                     f"{b['radio_queue_drops']} queue drops (without a budget: "
                     f"{pr['plain']['no_ack']}, {pr['plain']['radio_queue_drops']})"))
+    for name, c in ((rep.get("standby") or {}).get("conditions") or {}).items():
+        dups = {m: r["duplicates"] for m, r in c["modes"].items()}
+        out.append((f"standby {name}: no duplicate delivered in any mode (resent frames "
+                    f"included)", not any(dups.values()),
+                    ", ".join(f"{m} {n}" for m, n in dups.items())))
     p = mets.get("paper")
     if p and "dedup" in p:
         d = p["dedup"]
@@ -364,7 +380,7 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(REPO / "build" / "compare"))
     ap.add_argument("--only", help="comma-separated scenario names (and/or 'window', 'stale', "
-                                   "'priorities')")
+                                   "'priorities', 'standby')")
     ap.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
     ap.add_argument("--stream", default="auto",
                     help="auto (the ArduSub recording in ../shared/data/tlogs, else synthetic), "
@@ -397,6 +413,8 @@ def main() -> int:
               f"on {len(stale_after.CASES)} streams")
         print(f"{'priorities':<13} {'120':>4} s  a slow radio alone, with and without tx_rate: "
               f"command round trips")
+        print(f"{'standby':<13} {'130':>4} s  the slow radio with a metered LTE link: broadcast, "
+              f"standby, the radio alone")
         return 0
     if not args.plugin_dir:
         args.plugin_dir = str(Path(args.mavbond).resolve().parent.parent / "plugins")

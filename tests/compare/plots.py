@@ -128,3 +128,35 @@ def priorities_plot(raw: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def standby_plot(raw: dict, path: Path) -> None:
+    """The radio bonded with a metered LTE link (standby.py): per condition, each mode's
+    delivered loss and LTE bytes per hour."""
+    import standby  # noqa: PLC0415
+    conds = list(raw["conditions"])
+    modes = list(standby.MODES)
+    colours = {"broadcast": "tab:blue", "standby": "tab:green", "standby_noresend": "tab:olive",
+               "radio": "tab:gray"}
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    width = 0.8 / len(modes)
+    for k, m in enumerate(modes):
+        xs = [i + (k - (len(modes) - 1) / 2) * width for i in range(len(conds))]
+        rows = [raw["conditions"][c]["modes"][m] for c in conds]
+        label = standby.MODES[m][0].replace("`", "")
+        left.bar(xs, [100 * r["delivered_loss"] for r in rows], width, color=colours[m],
+                 label=label)
+        right.bar(xs, [r["lte_bytes_per_hour"] / 1e6 for r in rows], width, color=colours[m],
+                  label=label)
+    for ax, title, unit in ((left, "Delivered loss", "% of the frames sent"),
+                            (right, "LTE bytes (both directions, with headers)", "MB per hour")):
+        ax.set_xticks(range(len(conds)))
+        ax.set_xticklabels(conds)
+        ax.set_title(title, fontsize=10)
+        ax.set_ylabel(unit)
+        ax.grid(axis="y", alpha=0.3)
+    left.set_yscale("symlog", linthresh=0.1)
+    left.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -73,6 +73,25 @@ def priorities_sentence(rep) -> str:
             f"{budget['no_ack']}.")
 
 
+def standby_sentence(rep) -> str:
+    """The radio bonded with a metered LTE link (standby.py), in one sentence per the goal."""
+    raw = rep.get("standby")
+    if not raw:
+        return ""
+    import standby  # noqa: PLC0415
+    parts = []
+    for name, c in raw["conditions"].items():
+        b, s = c["modes"]["broadcast"], c["modes"]["standby"]
+        parts.append(f"{name} {C.pct(s['delivered_loss'], 2)} against "
+                     f"{C.pct(b['delivered_loss'], 2)} at "
+                     f"{s['lte_bytes'] / b['lte_bytes'] * 100:.0f} % of the LTE bytes")
+    met = [n for n, c in raw["conditions"].items() if all(standby.goal(c))]
+    return (f" A 57600 radio with a metered LTE link in standby (`standby`): delivered loss "
+            + "; ".join(parts) + " of `tx: broadcast`'s; the goal (within 1.5x of broadcast's "
+            f"loss at under 10 % of its LTE bytes) met in {len(met)} of "
+            f"{len(raw['conditions'])}.")
+
+
 def headline(rep, runtime: float) -> str:
     """The README's "## Results": what was compared, the summary table and plot, the verdict,
     and where the rest is."""
@@ -85,7 +104,7 @@ def headline(rep, runtime: float) -> str:
          "frames the vehicle sent):", ""]
     L += summary_table(rep)
     L += ["", "![delivered loss by scenario](tests/compare/results/summary.png)", "",
-          verdict(rep) + priorities_sentence(rep) + " How the runs are made, every scenario's "
+          verdict(rep) + priorities_sentence(rep) + standby_sentence(rep) + " How the runs are made, every scenario's "
           "table and plot, switchover, the dedup window, `stale_after` and the slow radio, from "
           "the data: [tests/compare/results/results.md](tests/compare/results/results.md).", "",
           "```sh",

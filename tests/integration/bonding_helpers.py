@@ -24,6 +24,7 @@ from helpers import (HOST, REPO, Daemon, FrameMaker, free_port, split_stream,  #
 TOOLS = REPO / "tests" / "tools"
 LINKEMU = TOOLS / "linkemu.py"
 sys.path.insert(0, str(TOOLS))
+import synth  # noqa: E402
 import tlog  # noqa: E402
 
 
@@ -235,6 +236,24 @@ class Receiver:
         self._stop = True
         self._t.join(2)
         return [f for _, f in self.frames]
+
+
+def unique_stream(seconds, seed):
+    """The ArduPilot-like stream with each frame whose bytes recur (a constant message with the
+    same sequence byte 256 frames later) changed in its last payload byte (CRC recomputed):
+    every frame is known by its bytes alone, and the sequence numbers stay unbroken."""
+    seen, out = set(), []
+    for t, f in synth.ardupilot_stream(seconds, seed=seed):
+        b = bytearray(f)
+        assert b[0] == 0xFD
+        n = b[1]
+        while bytes(b) in seen:
+            b[9 + n] = (b[9 + n] % 255) + 1  # never 0: a v2 payload's last byte is not a zero
+            crc = tlog.compute_crc(bytes(b), tlog.crc_extras()[tlog.msgid(bytes(b))])
+            b[10 + n], b[11 + n] = crc & 0xFF, crc >> 8
+        seen.add(bytes(b))
+        out.append((t / 1e6, bytes(b)))
+    return out
 
 
 def paced_send(schedule: Sequence[Tuple[float, bytes]], targets: Sequence[Tuple[socket.socket, Tuple[str, int]]],

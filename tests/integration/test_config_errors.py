@@ -45,6 +45,14 @@ BONDED = doc(ep(name="r", bond="v"), ep(name="l", address="127.0.0.1:14551", bon
              tail="bonds:\n  - {name: v}\n")
 
 
+def metered(lte: dict = {}, bond: str = "") -> str:
+    """A bond v of a free member r and a metered member l (with `lte`'s keys), the bond with
+    `bond`'s keys."""
+    return doc(ep(name="r", bond="v"),
+               ep(name="l", address="127.0.0.1:14551", bond="v", **{"cost": "metered", **lte}),
+               tail="bonds:\n  - {name: v" + bond + "}\n")
+
+
 def with_filter(entry: str) -> str:
     return BONDED + "filters:\n  - " + entry + "\n"
 
@@ -364,6 +372,45 @@ CASES = [
      BONDED.replace("{name: v}", f"{{name: v, renumber: {HERE}true}}")
      + "filters:\n  - {plugin: dedup, key: content, enabled: false}\n",
      ["'renumber' needs a dedup filter with 'key: content'"]),
+    # --- standby: a metered member (cost, standby_carries) and its bond's thresholds ---------
+    ("endpoint-cost-invalid", metered({"cost": f"{HERE}cheap"}),
+     ["endpoint 'l'", "invalid cost 'cheap'", "free, metered"]),
+    ("endpoint-cost-no-bond", doc(ep(**{f"{HERE}cost": "metered"})),
+     ["endpoint 'a': 'cost' needs 'bond'"]),
+    ("endpoint-standby_carries-unknown", metered({"standby_carries": f"[control, {HERE}video]"}),
+     ["'standby_carries': unknown class 'video'", "control, telemetry, bulk"]),
+    ("endpoint-standby_carries-empty", metered({"standby_carries": f"{HERE}[]"}),
+     ["'standby_carries' must name at least one class"]),
+    ("endpoint-standby_carries-not-metered",
+     doc(ep(name="r", bond="v"),
+         ep(name="l", address="127.0.0.1:14551", bond="v",
+            **{f"{HERE}standby_carries": "[control]"}), tail="bonds:\n  - {name: v}\n"),
+     ["'standby_carries' applies only with 'cost: metered'"]),
+    ("endpoint-standby_carries-scalar", metered({"standby_carries": f"{HERE}control"}),
+     ["'standby_carries'", "sequence"]),
+    ("bond-cost-every-member-metered",
+     doc(ep(name="r", bond="v", cost="metered"),
+         ep(name="l", address="127.0.0.1:14551", bond="v", cost="metered"),
+         tail=f"bonds:\n  - {{name: {HERE}v}}\n"),
+     ["bond 'v': every member is 'cost: metered'"]),
+    ("bond-failover_loss-not-percent", metered(bond=f", failover_loss: {HERE}ten"),
+     ["bond 'v': 'failover_loss': 'ten' is not a percentage"]),
+    ("bond-failover_loss-over-100", metered(bond=f", failover_loss: {HERE}120%"),
+     ["'failover_loss': '120%' is not a percentage from 0% to 100%"]),
+    ("bond-failover_loss-no-metered-member",
+     BONDED.replace("{name: v}", f"{{name: v, {HERE}failover_loss: 10%}}"),
+     ["bond 'v': 'failover_loss' applies only to a bond with a 'cost: metered' member"]),
+    ("bond-failback_loss-above-failover",
+     metered(bond=f", failover_loss: 5%, failback_loss: {HERE}8%"),
+     ["'failback_loss' must be below 'failover_loss' (5%)"]),
+    ("bond-failback_loss-not-percent", metered(bond=f", failback_loss: {HERE}0.02"),
+     ["'failback_loss': '0.02' is not a percentage"]),
+    ("bond-failback_after-no-unit", metered(bond=f", failback_after: {HERE}10"),
+     ["'failback_after': duration '10' needs a unit"]),
+    ("bond-resend-too-long", metered(bond=f", resend: {HERE}1m"),
+     ["'resend': at most 10s"]),
+    ("bond-resend-invalid", metered(bond=f", resend: {HERE}soon"),
+     ["'resend': invalid duration 'soon'"]),
     # --- filters: the entry ---------------------------------------------------------------
     ("filters-scalar", BONDED + f"filters: {HERE}dedup\n", ["'filters' must be a sequence"]),
     ("filter-scalar", BONDED + f"filters:\n  - {HERE}dedup\n", ["filter #1", "map"]),
@@ -461,9 +508,11 @@ KNOWN_KEYS = {
     "endpoint": {"name", "type", "mode", "address", "peer_timeout", "reconnect_min",
                  "reconnect_max", "resolve_interval", "device", "baud", "flow_control", "tx_queue", "allow_in",
                  "block_in", "allow_out", "block_out", "bond", "signing", "directory",
-                 "max_size", "rx_buffer", "tx_rate", "radio_status"},
+                 "max_size", "rx_buffer", "tx_rate", "radio_status", "cost",
+                 "standby_carries"},
     "signing": {"key_file", "require"},
-    "bond": {"name", "tx", "renumber"},
+    "bond": {"name", "tx", "renumber", "failover_loss", "failback_loss", "failback_after",
+             "resend"},
     "filter": {"plugin", "enabled", "bonds", "endpoints"},
     "metrics": {"listen", "timeout", "max_connections"},
     "identity": {"sysid", "compid", "heartbeat"},

@@ -28,9 +28,11 @@ SCRAPE_CONFIG = REPO / "conf" / "examples" / "prometheus-mavbond.yml"
 MANUAL = REPO / "conf" / "man" / "mavbond.8.in"
 # Series whose value moves between two reads of a quiet daemon: its clock, the age of its last
 # frame, and the HTTP endpoint's own counters (every scrape adds to them).
-# A bond's RADIO_STATUS goes once a second while a member reports or hears: it is counted so.
+# Figures that move with the clock: a bond's RADIO_STATUS (once a second while a member
+# reports or hears), a metered bond's standby reports (one a second) and its state (its peer,
+# the test, reports once and then falls silent).
 MOVING = re.compile(r"^mavbond_(uptime_seconds|endpoint_last_rx_age_seconds|metrics_http_\w+|"
-                    r"bond_radio_status_sent_total)$")
+                    r"bond_radio_status_sent_total|standby_\w+)$")
 
 pytestmark = pytest.mark.skipif(
     not Path(PROMETHEUS).is_file(),
@@ -150,11 +152,13 @@ class Prometheus:
 def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_pair, tmp_path):
     """One vehicle's stream into a gateway with every kind of figure: a broadcast bond with
     dedup (by content) and renumbering, an active-link bond with linkswitch, stats over both, a
-    transmit budget on the GCS server, a SiK radio on a UART that reports. Once the traffic is over and Prometheus has scraped
+    transmit budget on the GCS server, a SiK radio on a UART that reports, a bond with a
+    metered member whose peer (the test) sends it one link loss report. Once the traffic is
+    over and Prometheus has scraped
     again, each documented family is stored, each
     series Prometheus holds has the value /metrics serves, and the status socket's counters
     come back from PromQL unchanged."""
-    ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "gcs")}
+    ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "m1", "m2", "gcs")}
     m_port = tcp_port()
     status_path = tmp_path / "status.sock"
     radio = pty_pair()
@@ -162,10 +166,16 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_p
                      udp_server("a2", ports["a2"], bond="bonded"),
                      udp_server("b1", ports["b1"], bond="backup"),
                      udp_server("b2", ports["b2"], bond="backup"),
+                     # its peer (the test) forgotten a second after its report: the gateway's
+                     # own reports to it stop, and its figures settle
+                     udp_server("m1", ports["m1"], bond="paid", peer_timeout="1s"),
+                     udp_server("m2", ports["m2"], bond="paid", cost="metered",
+                                peer_timeout="1s"),
                      udp_server("gcs", ports["gcs"], tx_rate="1MB/s"),
                      uart("r1", radio.path, baud=57600, radio_status="sik", bond="radio")],
                     bonds=[{"name": "bonded", "tx": "broadcast", "renumber": True},
-                           {"name": "backup", "tx": "active"}, {"name": "radio"}],
+                           {"name": "backup", "tx": "active"}, {"name": "radio"},
+                           {"name": "paid", "tx": "broadcast"}],
                     filters=[{"plugin": "dedup", "bonds": ["bonded"], "key": "content"},
                              {"plugin": "linkswitch", "bonds": ["backup"]},
                              {"plugin": "stats"}],
@@ -184,6 +194,11 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_p
                     src.sendto(f, (HOST, ports[k]))
             if i % 20 == 0:
                 time.sleep(0.01)
+        # The metered bond's peer reports its free link m1 at 2% loss, over both links.
+        fm = FrameMaker(1, 191)
+        report = fm.pack(fm.mod.MAVLink_named_value_int_message(0, b"mbl:m1", 20))
+        for k in ("m1", "m2"):
+            src.sendto(report, (HOST, ports[k]))
         # The daemon's own counters say when the last frame went through.
         lost = len(range(3, len(frames), 10))
         want = {"a1": len(frames) - lost, "a2": len(frames), "b1": len(frames),
@@ -193,9 +208,10 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_p
             m = scrape(m_port)
             rx = {k: value(m, "mavbond_endpoint_rx_frames_total", endpoint=k, kind="udp-server",
                            bond="bonded" if k[0] == "a" else "backup") for k in want}
-            if rx == want:
+            heard = value(m, "mavbond_standby_reports_received_total", bond="paid")
+            if rx == want and heard == 2:
                 break
-            assert time.monotonic() < deadline, f"the gateway took {rx} of {want} frames"
+            assert time.monotonic() < deadline, f"the gateway took {rx} of {want} frames, {heard} reports"
             time.sleep(0.1)
         # Some figures still move after the traffic (linkswitch judges the links silent), so
         # the comparison takes a Prometheus scrape that fell between two reads of the daemon
@@ -253,6 +269,9 @@ def test_prometheus_stores_what_the_daemon_and_its_status_socket_show(lab, pty_p
             for k, v in b.get("renumber", {}).items():
                 (r,) = prom.query(f'mavbond_renumber_{k}_total{{bond="{b["name"]}"}}')
                 assert float(r["value"][1]) == v, (b["name"], k)
+            if "standby" in b:
+                (r,) = prom.query(f'mavbond_standby_reports_received_total{{bond="{b["name"]}"}}')
+                assert float(r["value"][1]) == b["standby"]["reports_received"] == 2
         filters = {f["name"]: f["status"] for f in st["filters"]}
         (bond,) = [b for b in filters["stats"]["bonds"] if b["name"] == "bonded"]
         (r,) = prom.query('mavbond_stats_bond_delivered_frames_total{bond="bonded"}')
