@@ -106,8 +106,13 @@ def headline(rep, runtime: float) -> str:
     L += ["", "![delivered loss by scenario](tests/compare/results/summary.png)", "",
           verdict(rep) + priorities_sentence(rep) + standby_sentence(rep) + " How the runs are made, every scenario's "
           "table and plot, switchover, the dedup window, `stale_after` and the slow radio, from "
-          "the data: [tests/compare/results/results.md](tests/compare/results/results.md).", "",
-          "```sh",
+          "the data: [tests/compare/results/results.md](tests/compare/results/results.md).", ""]
+    # The links-as-budgets jobs' plots, when they ran: the slow radio alone, radio + metered LTE.
+    plots = [f"![{job}](tests/compare/results/{job}.png)" for job in ("priorities", "standby")
+             if rep.get(job)]
+    if plots:
+        L += [" ".join(plots), ""]
+    L += ["```sh",
           f"scripts/compare             # every scenario ({runtime / 60:.0f} min on 2 cores); "
           "--publish refreshes results/ and this section",
           "```", ""]
