@@ -164,6 +164,16 @@ Result<void> NameResolver::start() {
     return {};
 }
 
+Result<void> NameResolver::start_every(Duration every) {
+    if (auto r = start(); !r)
+        return r;
+    every_ = loop_.schedule(every, [this, every] {
+        (void)start();
+        return every;
+    });
+    return {};
+}
+
 void NameResolver::on_done() {
     uint64_t count = 0;
     [[maybe_unused]] auto n = read(shared_->event.get(), &count, sizeof count);

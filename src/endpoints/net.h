@@ -68,6 +68,9 @@ public:
 
     /// Starts a lookup unless one is running; `done` is called on the loop with its result.
     Result<void> start();
+    /// Starts one now and then every `every` (a client's resolve_interval: a dynamic DNS name
+    /// moves); a later one that cannot start is tried again at the next.
+    Result<void> start_every(Duration every);
     bool running() const { return running_; }
     const std::string& host() const { return host_; }
     /// Lookups started, and those that failed (counters).
@@ -85,6 +88,7 @@ private:
     Done done_;
     std::shared_ptr<Shared> shared_;
     EventLoop::Watch watch_;
+    EventLoop::Timer every_;
     bool running_ = false;
     uint64_t lookups_ = 0;
     uint64_t failures_ = 0;

@@ -164,13 +164,8 @@ Result<std::unique_ptr<TcpClient>> TcpClient::open(const EndpointConfig& config,
     client->resolver_ = std::make_unique<NameResolver>(
         loop, host, port, SOCK_STREAM,
         [c = client.get()](Result<SocketAddress> r) { c->on_resolved(std::move(r)); });
-    if (auto r = client->resolver_->start(); !r)
+    if (auto r = client->resolver_->start_every(o.duration("resolve_interval")); !r)
         return r.error();
-    Duration every = o.duration("resolve_interval");
-    client->resolve_timer_ = loop.schedule(every, [c = client.get(), every] {
-        (void)c->resolver_->start();  // a failure to start is retried next time
-        return every;
-    });
     return client;
 }
 

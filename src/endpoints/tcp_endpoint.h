@@ -79,7 +79,6 @@ private:
 
     SocketAddress addr_;  // empty until a name resolves
     std::unique_ptr<NameResolver> resolver_;  // null for an address literal
-    EventLoop::Timer resolve_timer_;          // every resolve_interval
     bool resolve_failing_logged_ = false;
     Backoff backoff_;
     UniqueFd connecting_fd_;

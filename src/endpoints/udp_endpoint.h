@@ -172,7 +172,6 @@ private:
     EventLoop::Watch watch_;
     std::unique_ptr<NameResolver> resolver_;  // null for an address literal
     Backoff backoff_;      // lookups that fail
-    EventLoop::Timer resolve_timer_;  // every resolve_interval
     EventLoop::Timer resolve_retry_;  // after a failed lookup, with backoff
     TimePoint next_failure_lookup_{};
     bool failing_logged_ = false;

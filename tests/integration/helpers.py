@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+import threading
 import tty
 from pathlib import Path
 from typing import Callable, Dict, Iterable, List, Optional
@@ -470,3 +471,24 @@ def rss_means_memory(pid: int) -> bool:
     (256 MB) before reuse, so RSS measures ASan, not mavbond. In that build LeakSanitizer
     checks for leaks at the daemon's exit instead, and the descriptor checks still hold."""
     return "libasan" not in open(f"/proc/{pid}/maps").read()
+
+
+class PtyReader(threading.Thread):
+    """Reads the device side of a pty (a radio's) as fast as it comes, until stopped."""
+
+    def __init__(self, pty):
+        super().__init__(daemon=True)
+        self.pty, self.data, self.stop_flag = pty, bytearray(), threading.Event()
+        self.last_byte = time.monotonic()
+
+    def run(self):
+        while not self.stop_flag.is_set():
+            try:
+                chunk = os.read(self.pty.master, 65536)
+                if chunk:
+                    self.data += chunk
+                    self.last_byte = time.monotonic()
+                    continue
+            except (BlockingIOError, OSError):
+                pass
+            time.sleep(0.001)

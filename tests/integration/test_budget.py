@@ -7,13 +7,11 @@ newest sample of each message, never reordered, and its last sample goes; bulk a
 in order; the line never carries more than the rate allows; every frame is accounted for."""
 from __future__ import annotations
 
-import os
 import re
 import signal
-import threading
 import time
 
-from helpers import (HOST, FrameMaker, free_port, split_stream, status_document, uart,
+from helpers import (HOST, FrameMaker, PtyReader, free_port, split_stream, status_document, uart,
                      udp_server, udp_socket)
 
 RATE = 5760      # 57600 baud, 8N1
@@ -44,27 +42,6 @@ def telemetry_maker(fm: FrameMaker):
 def ftp_frame(fm: FrameMaker, k: int) -> bytes:
     payload = bytes([k & 0xFF, k >> 8]) + bytes(249)
     return fm.pack(fm.mod.MAVLink_file_transfer_protocol_message(0, 0, 0, list(payload[:251])))
-
-
-class PtyReader(threading.Thread):
-    """Reads the radio's side of the pty as fast as it comes, until stopped."""
-
-    def __init__(self, pty):
-        super().__init__(daemon=True)
-        self.pty, self.data, self.stop_flag = pty, bytearray(), threading.Event()
-        self.last_byte = time.monotonic()
-
-    def run(self):
-        while not self.stop_flag.is_set():
-            try:
-                chunk = os.read(self.pty.master, 65536)
-                if chunk:
-                    self.data += chunk
-                    self.last_byte = time.monotonic()
-                    continue
-            except (BlockingIOError, OSError):
-                pass
-            time.sleep(0.001)
 
 
 def test_a_saturated_radio_sends_commands_first_and_thins_telemetry(start_daemon, pty_pair,

@@ -22,7 +22,8 @@ import pytest
 from pymavlink import mavutil
 
 from bonding_helpers import Gateway, bond_config
-from helpers import HOST, FrameMaker, free_port, split_stream, status_document, uart, udp_server
+from helpers import (HOST, FrameMaker, PtyReader, free_port, split_stream, status_document, uart,
+                     udp_server)
 
 SLOW_CEILING = 5760     # 57600 baud, 8N1
 FAST_CEILING = 92160    # 921600 baud
@@ -43,26 +44,14 @@ def gateway(mavbond_bin, plugin_dir, tmp_path):
         gw.kill()
 
 
-class Radio(threading.Thread):
+class Radio(PtyReader):
     """A SiK radio on a pty: keeps every byte mavbond writes to it, and puts RADIO_STATUS into
     the stream towards mavbond as SiK does (MAVLink 1, system 51, component 68)."""
 
     def __init__(self, pty, rssi: int, rxerrors: int):
-        super().__init__(daemon=True)
-        self.pty, self.rssi, self.rxerrors = pty, rssi, rxerrors
-        self.data, self.stop_flag, self.sent = bytearray(), threading.Event(), 0
+        super().__init__(pty)
+        self.rssi, self.rxerrors, self.sent = rssi, rxerrors, 0
         self.makers = {}
-
-    def run(self):
-        while not self.stop_flag.is_set():
-            try:
-                chunk = os.read(self.pty.master, 65536)
-                if chunk:
-                    self.data += chunk
-                    continue
-            except (BlockingIOError, OSError):
-                pass
-            time.sleep(0.002)
 
     def report(self, txbuf: int, sysid: int = 51, compid: int = 68):
         fm = self.makers.setdefault((sysid, compid), FrameMaker(sysid, compid, v1=True))
