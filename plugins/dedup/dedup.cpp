@@ -260,7 +260,7 @@ private:
     uint32_t stream_of(uint32_t bond, uint8_t sysid, uint8_t compid);
     Lane& lane_of(const Arrival& a);
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
-    /// Whether the link was silent long enough to miss kAmbiguousStep frames, at the rate.
+    /// Whether the link was silent long enough to miss `frames` frames, at the source's rate.
     bool silent_for(const Lane& lane, const Stream& s, uint64_t t, int64_t frames) const;
     /// Whether key entry `e` has an instance of the arrival's stream its link has not had.
     bool unseen_instance(const Arrival& a, uint32_t e) const;
@@ -920,17 +920,16 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
 
     Verdict v;
     v.pos = continued;
-    uint32_t held = at(a.stream, v.pos);
-    if (held != kNone) {
-        if (ring_[held].h1 == key.h1 && ring_[held].h2 == key.h2) {
+    if (held_there != kNone) {
+        if (ring_[held_there].h1 == key.h1 && ring_[held_there].h2 == key.h2) {
             lane.contradictions = 0;
             if (a.unique) {  // a unique key confirms the alignment, and the first copy's
-                Lane& first = lanes_[size_t{a.stream} * kMaxMembers + ring_[held].first_member];
+                Lane& first = lanes_[size_t{a.stream} * kMaxMembers + ring_[held_there].first_member];
                 if (!lane.tentative)
                     first.tentative = 0;
                 lane.tentative = 0;
             }
-            return copy_of(a, held);  // the bond delivered this very position
+            return copy_of(a, held_there);  // the bond delivered this very position
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
         // without a run of frames to show it, or time chose wrong). Placed anew, by identity
