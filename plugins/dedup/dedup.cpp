@@ -145,6 +145,7 @@ struct Lane {
     int64_t head_before;       // the stream's head then
     int64_t proposed;        // the offset those contradictions agree on
     int64_t behind_head;     // how far behind the stream's head its last placed frame was
+    int64_t last_pos;        // where its last placed frame was
     int64_t head_then;       // the stream's head when the link's last frame came
     uint64_t last_t;
 };
@@ -248,6 +249,9 @@ private:
         // Its key never recurs: signed (a 48-bit timestamp in the signature), or a message
         // carrying time_boot_ms / time_usec. Only such a key may overrule an alignment.
         bool unique;
+        // The host read its step as one back (a late frame filling a gap, or a repeat): with
+        // 128 frames or more missed, it may as well be a step forward.
+        bool stepped_back;
     };
 
     /// Whether frames of `link` are deduplicated: a member of a bond, within the tables' bounds.
@@ -256,12 +260,14 @@ private:
     uint32_t stream_of(uint32_t bond, uint8_t sysid, uint8_t compid);
     Lane& lane_of(const Arrival& a);
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
-    /// Whether the link was silent long enough to miss kAmbiguousStep frames, at the rate.
-    bool silent_for_a_turn(const Lane& lane, const Stream& s, uint64_t t) const;
+    /// Whether the link was silent long enough to miss `frames` frames, at the source's rate.
+    bool silent_for(const Lane& lane, const Stream& s, uint64_t t, int64_t frames) const;
     /// Whether key entry `e` has an instance of the arrival's stream its link has not had.
     bool unseen_instance(const Arrival& a, uint32_t e) const;
-    /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place.
-    Verdict align(const Arrival& a, Lane& lane, uint32_t e, const char* why);
+    /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place,
+    /// after position `after` when the frame is known to follow one there.
+    Verdict align(const Arrival& a, Lane& lane, uint32_t e, const char* why,
+                  int64_t after = kUnknownPos);
     Verdict copy_of(const Arrival& a, uint32_t rec);
     /// Aligns a link's lane; a changed alignment is logged with `why`.
     void set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why);
@@ -641,9 +647,8 @@ Lane& Dedup::lane_of(const Arrival& a) {
     return lane;
 }
 
-bool Dedup::silent_for_a_turn(const Lane& lane, const Stream& s, uint64_t t) const {
-    return s.ns_per_frame != 0 &&
-           t - lane.last_t >= static_cast<uint64_t>(kAmbiguousStep) * s.ns_per_frame;
+bool Dedup::silent_for(const Lane& lane, const Stream& s, uint64_t t, int64_t frames) const {
+    return s.ns_per_frame != 0 && t - lane.last_t >= static_cast<uint64_t>(frames) * s.ns_per_frame;
 }
 
 void Dedup::set_alignment(const Arrival& a, Lane& lane, int64_t offset, const char* why) {
@@ -750,7 +755,8 @@ Dedup::Verdict Dedup::copy_of(const Arrival& a, uint32_t rec) {
     return v;
 }
 
-Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char* why) {
+Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char* why,
+                            int64_t after) {
     const bool outage = why != nullptr;
     Stream& s = streams_[a.stream];
     Verdict v;
@@ -779,6 +785,8 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     int options = 0;
     auto consider = [&](int64_t pos, uint32_t rec, uint64_t t_first, uint32_t first_member,
                         bool copy) {
+        if (pos <= after)
+            return;
         options++;
         int64_t err;
         if (by_time)
@@ -886,30 +894,42 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     // nowhere, nothing says otherwise, and the alignment stands, tentatively (placing it by
     // time instead, with the source's rate thrown by the burst, put the link's next frames
     // where their copies were not, and delivered them twice).
+    // That holds for a step forward only: a step the host read as one back (a late frame, a
+    // repeat) may as well be one forward of 128 or more, as a sparse link's (one frame per
+    // ~128 of the source) often is; it is placed anew. A repeat where the bond holds nothing
+    // is none: the step forward, after the link's last frame. And where the bond holds this
+    // very frame at the position its step gives, that is where it is, unless its key recurs
+    // and the link's silence fits a step of a turn more better (the instance there is the
+    // frame's earlier one). A queued link's burst after a stall moved the head past a sparse
+    // link's next frame: the step is no less plain for it.
     const int64_t continued = a.link_pos + lane.offset;  // where its step says it is
-    const bool silent = silent_for_a_turn(lane, s, a.t);
-    if (silent || s.head - lane.head_then >= kAmbiguousStep ||
-        s.head - continued - lane.behind_head >= kAmbiguousStep ||
-        ((flags & MAVBOND_STREAM_REPEAT) && at(a.stream, continued) == kNone)) {
+    const uint32_t held_there = at(a.stream, continued);
+    const bool this_frame_there =
+        held_there != kNone && ring_[held_there].h1 == key.h1 && ring_[held_there].h2 == key.h2 &&
+        !silent_for(lane, s, a.t, std::max<int64_t>(continued - lane.last_pos + kAmbiguousStep, 0));
+    const bool silent = silent_for(lane, s, a.t, kAmbiguousStep);
+    const bool no_repeat = (flags & MAVBOND_STREAM_REPEAT) && held_there == kNone;
+    if (!this_frame_there && (silent || s.head - lane.head_then >= kAmbiguousStep ||
+                              s.head - continued - lane.behind_head >= kAmbiguousStep || no_repeat)) {
         uint32_t e = find(a.bond, key);
-        if (silent || at(a.stream, continued) != kNone || (e != kNone && unseen_instance(a, e)))
-            return align(a, lane, e, "a step of 128 frames or more");
+        if (silent || a.stepped_back || held_there != kNone || (e != kNone && unseen_instance(a, e)))
+            return align(a, lane, e, "a step of 128 frames or more",
+                         no_repeat ? lane.last_pos : kUnknownPos);
         mark_tentative(a, lane);
     }
 
     Verdict v;
     v.pos = continued;
-    uint32_t held = at(a.stream, v.pos);
-    if (held != kNone) {
-        if (ring_[held].h1 == key.h1 && ring_[held].h2 == key.h2) {
+    if (held_there != kNone) {
+        if (ring_[held_there].h1 == key.h1 && ring_[held_there].h2 == key.h2) {
             lane.contradictions = 0;
             if (a.unique) {  // a unique key confirms the alignment, and the first copy's
-                Lane& first = lanes_[size_t{a.stream} * kMaxMembers + ring_[held].first_member];
+                Lane& first = lanes_[size_t{a.stream} * kMaxMembers + ring_[held_there].first_member];
                 if (!lane.tentative)
                     first.tentative = 0;
                 lane.tentative = 0;
             }
-            return copy_of(a, held);  // the bond delivered this very position
+            return copy_of(a, held_there);  // the bond delivered this very position
         }
         // Another frame holds this position: the alignment is wrong (a counter restarted
         // without a run of frames to show it, or time chose wrong). Placed anew, by identity
@@ -999,8 +1019,10 @@ void Dedup::note_position(const Arrival& a, Lane& lane, int64_t pos) {
             s.head_t = a.t;
             s.head_member = a.member;
         }
-        if (lane.aligned)
+        if (lane.aligned) {
             lane.behind_head = s.head - pos;
+            lane.last_pos = pos;
+        }
     }
     lane.head_then = s.head;
     lane.last_t = a.t;
@@ -1107,7 +1129,8 @@ mavbond_verdict Dedup::on_ingress(const mavbond_frame* f, mavbond_frame_notes* n
         expire(t);
         bool is_signed = key_ == KeyKind::frame && (f->incompat_flags & 0x01) != 0;
         Arrival a{bond, member, from->id, stream_of(bond, f->sysid, f->compid), f->stream_pos, t,
-                  is_signed, is_signed || f->timestamp_offset >= 0};
+                  is_signed, is_signed || f->timestamp_offset >= 0,
+                  f->stream_lost < 0 || (f->stream_flags & MAVBOND_STREAM_REPEAT) != 0};
         if (a.stream != kNone && !(f->stream_flags & MAVBOND_STREAM_UNTRACKED)) {
             Verdict v = decide(a, key, f->stream_flags);
             Lane& lane = lane_of(a);
