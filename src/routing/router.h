@@ -85,7 +85,7 @@ public:
             OneBond,       // every member of `bond`, whatever its tx policy or standby (a
                            // standby report must go over every link, the metered one too)
         };
-        Reach(Kind kind = Everywhere, uint32_t bond = kNoBond) : kind(kind), bond(bond) {}
+        Reach(Kind k = Everywhere, uint32_t b = kNoBond) : kind(k), bond(b) {}
         static Reach to_bond(uint32_t bond) { return {OneBond, bond}; }
         Kind kind;
         uint32_t bond;
