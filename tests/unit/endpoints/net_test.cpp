@@ -5,11 +5,26 @@
 
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <netdb.h>
 
 #include <optional>
 
 namespace mavbond {
 namespace {
+
+/// Whether this machine's own resolver (getaddrinfo, nothing of ours) knows "localhost": a
+/// build chroot without /etc/hosts does not, and then there is nothing to hold resolve() to.
+bool machine_resolves_localhost() {
+    addrinfo* list = nullptr;
+    int rc = getaddrinfo("localhost", nullptr, nullptr, &list);
+    if (list)
+        freeaddrinfo(list);
+    return rc == 0;
+}
+
+#define SKIP_UNLESS_LOCALHOST_RESOLVES()                                                   \
+    if (!machine_resolves_localhost())                                                     \
+    GTEST_SKIP() << "getaddrinfo cannot resolve 'localhost' on this machine (no /etc/hosts?)"
 
 TEST(SocketAddress, ReadsIpv4AndIpv6LiteralsAndNothingElse) {
     SocketAddress v4 = SocketAddress::numeric("192.0.2.1", 14550);
@@ -67,13 +82,17 @@ TEST(Resolve, LooksUpNamesAndTakesLiteralsAsTheyAre) {
     auto literal = resolve("::1", 9, SOCK_DGRAM);
     ASSERT_TRUE(literal);
     EXPECT_EQ("[::1]:9", literal->to_string());
-    auto name = resolve("localhost", 9, SOCK_DGRAM);
-    ASSERT_TRUE(name) << name.error().message;
-    EXPECT_EQ(9, name->port());
     auto bad = resolve("no-such-host.invalid", 9, SOCK_DGRAM);
     ASSERT_FALSE(bad);
     EXPECT_NE(std::string::npos, bad.error().message.find("cannot resolve 'no-such-host.invalid'"))
         << bad.error().message;
+}
+
+TEST(Resolve, LooksUpALocalName) {
+    SKIP_UNLESS_LOCALHOST_RESOLVES();
+    auto name = resolve("localhost", 9, SOCK_DGRAM);
+    ASSERT_TRUE(name) << name.error().message;
+    EXPECT_EQ(9, name->port());
 }
 
 TEST(BindSocket, TheIpv6WildcardTakesIpv4PeersToo) {
@@ -112,6 +131,7 @@ void run_until(EventLoop& loop, F done) {
 }
 
 TEST(NameResolver, AnswersOnTheLoopWithoutBlockingIt) {
+    SKIP_UNLESS_LOCALHOST_RESOLVES();
     auto loop = EventLoop::create();
     ASSERT_TRUE(loop);
     std::optional<Result<SocketAddress>> got;
@@ -126,11 +146,14 @@ TEST(NameResolver, AnswersOnTheLoopWithoutBlockingIt) {
     ASSERT_TRUE(*got) << got->error().message;
     EXPECT_EQ(14550, (*got)->port());
     EXPECT_FALSE(resolver.running());
+}
 
-    // Again, for a name that does not exist: the failure comes back the same way, counted.
+TEST(NameResolver, AFailedLookupComesBackTheSameWayCounted) {
+    auto loop = EventLoop::create();
+    ASSERT_TRUE(loop);
+    std::optional<Result<SocketAddress>> got;
     NameResolver bad(**loop, "no-such-host.invalid", 1, SOCK_DGRAM,
                      [&](Result<SocketAddress> r) { got = std::move(r); });
-    got.reset();
     ASSERT_TRUE(bad.start());
     run_until(**loop, [&] { return got.has_value(); });
     ASSERT_TRUE(got.has_value());
