@@ -437,6 +437,12 @@ struct LinkModel {
     std::pair<int, int> outage = {0, 0};  // frames [first, last) lost in a row
 };
 
+/// A stable sort: copies that arrive at one instant keep the order they were made in.
+void in_time_order(std::vector<Arrival>& arrivals) {
+    std::stable_sort(arrivals.begin(), arrivals.end(),
+                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
+}
+
 /// Arrivals of every source frame over each link, in time order.
 std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
                               const std::vector<LinkModel>& links, uint32_t seed) {
@@ -458,8 +464,7 @@ std::vector<Arrival> simulate(int count, uint64_t start, uint64_t period_ns,
             out.push_back({t, l, i});
         }
     }
-    std::stable_sort(out.begin(), out.end(),
-                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
+    in_time_order(out);
     return out;
 }
 
@@ -503,6 +508,21 @@ Outcome run(const std::vector<Bytes>& frames, const std::vector<Arrival>& arriva
         o.duplicates_passed += std::max(0, delivered[i] - 1);
     }
     return o;
+}
+
+/// Feeds the copies of `sent` (anything with a .frame) in time order to the fixture's links a
+/// and b: every frame some link brought is delivered once.
+template <typename Sent>
+void expect_each_frame_once(DedupTest& t, const std::vector<Sent>& sent,
+                            std::vector<Arrival> arrivals) {
+    in_time_order(arrivals);
+    std::vector<Bytes> frames;
+    for (const Sent& x : sent)
+        frames.push_back(x.frame);
+    Outcome o = run(frames, arrivals, {t.a_, t.b_},
+                    [&t](const mavbond_link& l, const Bytes& f, uint64_t at) { return t.feed(l, f, at); });
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
 }
 
 Outcome simulate_and_run(DedupTest& t, int count, const std::vector<LinkModel>& models,
@@ -739,15 +759,7 @@ TEST_P(DedupHandOverTest, ALinkBackFromACutIsPlacedByTheLinkThatNeverLeft) {
         if ((s < cut + 3000 * kMs || s >= cut + 6000 * kMs) && !lose(rng))  // then b for 3 s
             arrivals.push_back({s + lag_ms * kMs, 1, static_cast<int>(i)});
     }
-    std::stable_sort(arrivals.begin(), arrivals.end(),
-                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
-    std::vector<Bytes> frames;
-    for (const Sent& x : sent)
-        frames.push_back(x.frame);
-    Outcome o = run(frames, arrivals, {a_, b_},
-                    [this](const mavbond_link& l, const Bytes& f, uint64_t at) { return feed(l, f, at); });
-    EXPECT_EQ(0, o.legit_dropped);
-    EXPECT_EQ(0, o.duplicates_passed);
+    expect_each_frame_once(*this, sent, std::move(arrivals));
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -812,15 +824,7 @@ TEST_P(DedupStandbyTest, ASparseLinkAheadOfAQueuedRadioKeepsItsPlace) {
             stalled_until = x.t + stall_len(rng);
         arrivals.push_back({std::max(leave, stalled_until) + 20 * kMs, 0, static_cast<int>(i)});
     }
-    std::stable_sort(arrivals.begin(), arrivals.end(),
-                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
-    std::vector<Bytes> frames;
-    for (const Sent& x : sent)
-        frames.push_back(x.frame);
-    Outcome o = run(frames, arrivals, {a_, b_},
-                    [this](const mavbond_link& l, const Bytes& f, uint64_t at) { return feed(l, f, at); });
-    EXPECT_EQ(0, o.legit_dropped);
-    EXPECT_EQ(0, o.duplicates_passed);
+    expect_each_frame_once(*this, sent, std::move(arrivals));
 }
 
 // Before the fix, 26 of these 59 cases passed copies (up to 11 in one case).
@@ -855,8 +859,7 @@ TEST_F(DedupTest, LatencyStepChangesNothing) {
         a.source += half;
     std::vector<Arrival> arrivals = first;
     arrivals.insert(arrivals.end(), second.begin(), second.end());
-    std::stable_sort(arrivals.begin(), arrivals.end(),
-                     [](const Arrival& x, const Arrival& y) { return x.t < y.t; });
+    in_time_order(arrivals);
     Outcome o = run(frames, arrivals, {a_, b_},
                     [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
     std::printf("latency step: %d delivered of %d, %d legitimate dropped, %d copies passed\n",
