@@ -117,9 +117,17 @@ void Router::end_batch() {
 void Router::replace_bonds(const Config& config) {
     // Frames waiting in a bond that is replaced are handled first, in the order they came.
     merge_round(true);
+    std::vector<Bond> old = std::move(bonds_);
     bonds_.clear();
-    for (const auto& b : config.bonds)
-        bonds_.emplace_back(b, config.endpoints, config.tx_classes, loop_.now());
+    for (const auto& b : config.bonds) {
+        Bond& bond = bonds_.emplace_back(b, config.endpoints, config.tx_classes, loop_.now());
+        auto was = std::find_if(old.begin(), old.end(),
+                                [&](const Bond& o) { return o.name() == bond.name(); });
+        if (was != old.end() && was->standby() && bond.standby() &&
+            bond.standby()->continue_from(*was->standby()))
+            log_info("bond %s: standby continues %s", bond.name().c_str(),
+                     bond.standby()->active() ? "active" : "in standby");
+    }
     place_links();
 }
 

@@ -24,6 +24,34 @@ Standby::Standby(const BondConfig& bond, const std::vector<const EndpointConfig*
         held_.resize(kHeldCapacity);
 }
 
+bool Standby::continue_from(const Standby& old) {
+    auto same = [](const Member& a, const Member& b) {
+        return a.name == b.name && a.metered == b.metered;
+    };
+    if (!std::equal(members_.begin(), members_.end(), old.members_.begin(), old.members_.end(), same))
+        return false;
+    for (size_t i = 0; i < members_.size(); i++) {
+        const uint8_t carries = members_[i].carries;
+        members_[i] = old.members_[i];
+        members_[i].carries = carries;
+    }
+    peer_ = old.peer_;
+    started_ = old.started_;  // the loss buckets count from it
+    last_report_ = old.last_report_;
+    active_ = old.active_;
+    counters_ = old.counters_;
+    if (failback_after_ == old.failback_after_) {
+        healthy_since_ = old.healthy_since_;
+        healthy_ = old.healthy_;
+    }
+    if (!held_.empty() && !old.held_.empty()) {
+        held_ = old.held_;
+        held_head_ = old.held_head_;
+        held_count_ = old.held_count_;
+    }
+    return true;
+}
+
 void Standby::hold(uint32_t member, const Frame& frame, uint64_t route, TimePoint now) {
     counters_.withheld++;
     if (held_.empty())

@@ -62,6 +62,13 @@ public:
     Standby(const BondConfig& bond, const std::vector<const EndpointConfig*>& members,
             const TxClassesConfig& classes, TimePoint now);
 
+    /// Takes over what `old`, this bond's standby before a reload, measured and decided, when
+    /// its members are the same (names and costs, in order): a reload that changes a threshold
+    /// neither forgets a failing radio nor drops what was held for a resend. The thresholds
+    /// and classes are the new ones; with a new failback_after the free links prove themselves
+    /// healthy again over it. False, and nothing taken, when the members differ.
+    bool continue_from(const Standby& old);
+
     // --- what is sent --------------------------------------------------------------------
 
     /// Whether member `member` may carry a frame of message `msgid` now.

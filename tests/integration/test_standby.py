@@ -10,6 +10,7 @@ more and checks what those later frames did."""
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import threading
 import time
@@ -141,8 +142,8 @@ def make_lab(lab, tmp_path, radio_opts, failback_after="2s"):
 
 
 def test_standby_carries_control_fails_over_on_a_cut_and_comes_back(lab, tmp_path):
-    """Radio 1% loss, cut from 8 s to 14 s after its emulator started; failback_after 2 s.
-    Before the cut the LTE link carries only control frames (and the gateways' reports); during
+    """Radio 1% loss, cut from 8 s to 14 s after its emulator started; failback_after 2 s; the
+    air gateway reloads a changed bond once the cut is seen. Before the cut the LTE link carries only control frames (and the gateways' reports); during
     the cut it carries everything; once the air gateway's counters say it is back in standby,
     the frames sent after that go over LTE only if they are control. The GCS gets every frame
     that reached the ground on some link, exactly once."""
@@ -157,6 +158,16 @@ def test_standby_carries_control_fails_over_on_a_cut_and_comes_back(lab, tmp_pat
     stream.start()
     # The cut is seen: the metered link went active (the ground reported the radio silent).
     wait_for(lambda: standby_of(air_sock)["to_active"] >= 1, "the air gateway to go active")
+    # A reload that changes the bond (a threshold: the bond and the filters are rebuilt) goes
+    # on from what the standby knew: still active, no second switch, nothing held lost (the
+    # checks below find any frame of the cut the LTE link did not carry).
+    air.config_path.write_text(air.config_path.read_text().replace(
+        "failback_after: 2s", "failback_after: 2s, failover_loss: 12%"))
+    air.proc.send_signal(signal.SIGHUP)
+    air.wait_log(r"bond vehicle: standby continues active")
+    air.wait_log(r"reloaded: .*filters restarted")
+    reloaded = standby_of(air_sock)
+    assert reloaded["state"] == "active" and reloaded["to_active"] == 1, reloaded
     # The radio is back and has been healthy for failback_after: standby again.
     wait_for(lambda: standby_of(air_sock)["to_standby"] >= 1, "the air gateway to go back")
     back_at = stream.sent

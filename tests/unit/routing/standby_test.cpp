@@ -209,5 +209,47 @@ TEST_F(StandbyTest, HeldFramesOfTheResendWindowGoOldestFirstOnce) {
     s.take_held(t0_ + milliseconds(2900), [&](uint32_t, std::span<const uint8_t>) { FAIL(); });
 }
 
+TEST_F(StandbyTest, AReloadGoesOnFromWhatTheOldOneLearned) {
+    bond_.resend = seconds(1);
+    Standby old = make();
+    TimePoint t = t0_ + seconds(1);
+    old.take_report(Wire("mbl:radio", 1000).frame, t);  // the radio is silent
+    ASSERT_TRUE(old.judge(t));
+    std::deque<Wire> frames;
+    for (uint8_t i = 0; i < 5; i++) {
+        frames.emplace_back("mbl:x", i, i);
+        old.hold(1, frames[i].frame, i, t);
+    }
+    // The reload changes the thresholds: the new standby is active at once (a fresh one would
+    // withhold telemetry until the next report) and has what was held for a resend.
+    bond_.failover_loss = 0.2;
+    bond_.failback_after = seconds(3);
+    Standby next = make();
+    ASSERT_TRUE(next.continue_from(old));
+    EXPECT_TRUE(next.active());
+    EXPECT_TRUE(next.lets_send(1, kAttitude));
+    EXPECT_EQ(1u, next.counters().to_active);
+    ASSERT_EQ(1u, next.peer_links().size());
+    EXPECT_FALSE(next.judge(t + milliseconds(100)));  // no second switch
+    size_t held = 0;
+    next.take_held(t, [&](uint32_t, std::span<const uint8_t>) { held++; });
+    EXPECT_EQ(5u, held);
+    // The radio is back: the new failback_after (3 s, not 10) decides.
+    TimePoint back = t + seconds(1);
+    for (t = back; next.active() && t < back + seconds(12); t += milliseconds(500)) {
+        next.take_report(Wire("mbl:radio", 0).frame, t);
+        next.judge(t);
+    }
+    EXPECT_FALSE(next.active());
+    EXPECT_LE(t, back + seconds(4));
+    // Other members: nothing is taken.
+    EndpointConfig other;
+    other.name = "radio2";
+    Standby elsewhere(bond_, {&other, &lte_}, classes_, t0_);
+    EXPECT_FALSE(elsewhere.continue_from(old));
+    EXPECT_FALSE(elsewhere.active());
+    EXPECT_EQ(0u, elsewhere.counters().to_active);
+}
+
 }  // namespace
 }  // namespace mavbond
