@@ -387,12 +387,20 @@ def test_ipv6_wildcard_server_takes_ipv4_peers_and_names_them_as_ipv4(start_daem
 
 # --- host names that move (dynamic DNS) -------------------------------------------------------
 
-def unshare_works() -> bool:
+def private_mounts() -> Optional[str]:
+    """The unshare options that give a process its own mount namespace here, or None: as root
+    a mount namespace alone (a chroot may not make user namespaces), else with a user namespace."""
     if not shutil.which("unshare"):
-        return False
-    r = subprocess.run(["unshare", "-rm", "sh", "-c", "mount --bind /dev/null /etc/hosts"],
-                       capture_output=True)
-    return r.returncode == 0
+        return None
+    for opts in (["-m"] if os.geteuid() == 0 else []) + ["-rm"]:
+        r = subprocess.run(["unshare", opts, "sh", "-c", "mount --bind /dev/null /etc/hosts"],
+                           capture_output=True)
+        if r.returncode == 0:
+            return opts
+    return None
+
+
+UNSHARE = private_mounts()
 
 
 class HostsFile:
@@ -412,17 +420,18 @@ class HostsFile:
 
 
 def daemon_with_hosts(mavbond_bin: str, tmp_path: Path, hosts: HostsFile, endpoints, name: str):
-    """A daemon whose /etc/hosts is `hosts` (unshare -rm: a user and mount namespace, the
-    network namespace shared)."""
+    """A daemon whose /etc/hosts is `hosts` (its own mount namespace, the network namespace
+    shared)."""
     wrapper = tmp_path / f"{name}-ns.sh"
     wrapper.write_text("#!/bin/sh\n"
-                       f"exec unshare -rm sh -c 'mount --bind {hosts.path} /etc/hosts && "
+                       f"exec unshare {UNSHARE} sh -c 'mount --bind {hosts.path} /etc/hosts && "
                        f"exec {mavbond_bin} \"$@\"' sh \"$@\"\n")
     wrapper.chmod(0o755)
     return Daemon(str(wrapper), tmp_path, make_config(endpoints), name=name)
 
 
-@pytest.mark.skipif(not unshare_works(), reason="needs unshare -rm (user and mount namespaces)")
+@pytest.mark.skipif(UNSHARE is None, reason="needs unshare -m as root, or -rm (a mount "
+                    "namespace; a user namespace with it when not root)")
 def test_a_client_follows_its_host_name_to_a_new_address(mavbond_bin, tmp_path):
     """lte.test first resolves to 127.0.0.1, then to ::1 (the hosts file changes under the
     daemon, the real resolver reads it): the UDP client sends to the new address from the
