@@ -141,6 +141,17 @@ def make_lab(lab, tmp_path, radio_opts, failback_after="2s"):
     return p, ground, air, emu, sniffers, ground_sock, air_sock
 
 
+def start_traffic(lab, p, sniffers, seed):
+    """Starts the sniffers, a GCS on the ground gateway and 60 s of stream into the air one."""
+    for s in sniffers.values():
+        s.start()
+    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
+    frames = unique_stream(60, seed=seed)
+    stream = Stream(lab.sock(), (HOST, p["ap"]), frames)
+    stream.start()
+    return gcs, frames, stream
+
+
 def test_standby_carries_control_fails_over_on_a_cut_and_comes_back(lab, tmp_path):
     """Radio 1% loss, cut from 8 s to 14 s after its emulator started; failback_after 2 s; the
     air gateway reloads a changed bond once the cut is seen. Before the cut the LTE link carries only control frames (and the gateways' reports); during
@@ -150,12 +161,7 @@ def test_standby_carries_control_fails_over_on_a_cut_and_comes_back(lab, tmp_pat
     p, ground, air, emu, sniffers, ground_sock, air_sock = make_lab(
         lab, tmp_path, dict(loss="1%", outage="8s+6s"))
     sniffer = sniffers["lte"]
-    for s in sniffers.values():
-        s.start()
-    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
-    frames = unique_stream(60, seed=9)
-    stream = Stream(lab.sock(), (HOST, p["ap"]), frames)
-    stream.start()
+    gcs, frames, stream = start_traffic(lab, p, sniffers, seed=9)
     # The cut is seen: the metered link went active (the ground reported the radio silent).
     wait_for(lambda: standby_of(air_sock)["to_active"] >= 1, "the air gateway to go active")
     # A reload that changes the bond (a threshold: the bond and the filters are rebuilt) goes
@@ -272,12 +278,7 @@ def test_standby_goes_active_on_a_lossy_radio_and_stays(lab, tmp_path):
     and stays active; the GCS gets every frame exactly once, the radio's losses filled by LTE."""
     p, ground, air, emu, sniffers, ground_sock, air_sock = make_lab(lab, tmp_path,
                                                                     dict(loss="30%"))
-    for s in sniffers.values():
-        s.start()
-    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
-    frames = unique_stream(60, seed=10)
-    stream = Stream(lab.sock(), (HOST, p["ap"]), frames)
-    stream.start()
+    gcs, frames, stream = start_traffic(lab, p, sniffers, seed=10)
     wait_for(lambda: standby_of(air_sock)["to_active"] >= 1, "the air gateway to go active")
     active_at = stream.sent
     wait_for(lambda: stream.sent >= active_at + 496, "four more seconds of stream")
