@@ -60,6 +60,12 @@ public:
     /// The standby of its metered members (routing/standby.h); nullptr when none is metered.
     Standby* standby() { return standby_.get(); }
     const Standby* standby() const { return standby_.get(); }
+    /// A reload rebuilt this bond from `old`, its namesake: what outlives the config is
+    /// taken over (the standby's measurements and state, Standby::continue_from). True when
+    /// a standby was.
+    bool continue_from(const Bond& old) {
+        return standby_ && old.standby_ && standby_->continue_from(*old.standby_);
+    }
 
     /// Whether a member's radio reports for the bond (`radio_status`): then mavbond speaks
     /// RADIO_STATUS for the bond, and any other RADIO_STATUS that comes in on a member (a far

@@ -123,8 +123,7 @@ void Router::replace_bonds(const Config& config) {
         Bond& bond = bonds_.emplace_back(b, config.endpoints, config.tx_classes, loop_.now());
         auto was = std::find_if(old.begin(), old.end(),
                                 [&](const Bond& o) { return o.name() == bond.name(); });
-        if (was != old.end() && was->standby() && bond.standby() &&
-            bond.standby()->continue_from(*was->standby()))
+        if (was != old.end() && bond.continue_from(*was))
             log_info("bond %s: standby continues %s", bond.name().c_str(),
                      bond.standby()->active() ? "active" : "in standby");
     }
