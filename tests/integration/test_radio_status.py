@@ -496,11 +496,17 @@ def run_closed_loop(gateway, pty_pair, tmp_path, name, with_reports: bool, secon
                 src.write(ack)
             i += 1
         time.sleep(2.0)   # the radio's buffer drains
-        doc = status_document(sock)
     finally:
         model.stop_flag.set()
-        model.join(2)
+        model.join(10)
         src.close()
+    assert not model.is_alive()
+    # The model writes no more: every report it wrote is on the pty, so the daemon's count
+    # comes to the model's unless the daemon lost one (a report written just before a read of
+    # the status may not be taken yet: wait for the count, not for a time).
+    reports = lambda d: (endpoint(d, "radio").get("radio_status") or {}).get("reports")
+    doc = (wait_status(sock, lambda d: reports(d) == model.reports, timeout=10) if with_reports
+           else status_document(sock))
     assert gw.stop() == 0
     radio_doc = endpoint(doc, "radio")
     return {
@@ -509,7 +515,7 @@ def run_closed_loop(gateway, pty_pair, tmp_path, name, with_reports: bool, secon
         "acks_aired": sum(f in acks for f in model.aired),
         "acks_lost": sum(f in acks for f in model.lost),
         "rate": radio_doc["tx_budget"]["rate"], "txbufs": model.txbufs,
-        "reports": (radio_doc.get("radio_status") or {}).get("reports"),
+        "reports": reports(doc),
         "sent_reports": model.reports,
     }
 
