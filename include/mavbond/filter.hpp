@@ -12,6 +12,7 @@
 //   void on_link(const mavbond_link* link, mavbond_link_event event);
 //   void status(mavbond::JsonOut& out);           // one JSON object for the status socket
 //   void metrics(mavbond::MetricOut& out);        // out.counter(...), out.gauge(...)
+//   void describe(uint32_t bond, mavbond::JsonOut& out);  // a line of text: what it derived
 // The host hands a filter only the links and frames of its scope.
 //
 // In the plugin:
@@ -126,6 +127,18 @@ struct FilterPlugin {
         }
     }
 
+    static size_t describe(void* self, uint32_t bond, char* buf, size_t len) noexcept {
+        JsonOut out(buf, len);
+        try {
+            static_cast<T*>(self)->describe(bond, out);
+            return out.length();
+        } catch (...) {
+            if (buf && len > 0)
+                buf[0] = '\0';
+            return 0;
+        }
+    }
+
     static constexpr mavbond_plugin_descriptor descriptor(const char* name, const char* version,
                                                           const char* description,
                                                           const mavbond_option* options) {
@@ -145,6 +158,8 @@ struct FilterPlugin {
             d.status_json = status_json;
         if constexpr (requires(T t, MetricOut& o) { t.metrics(o); })
             d.metrics = metrics;
+        if constexpr (requires(T t, JsonOut& o) { t.describe(0u, o); })
+            d.describe = describe;
         return d;
     }
 };
@@ -153,6 +168,7 @@ struct FilterPlugin {
 
 /// Exports plugin class T under `name` (which must equal the file name NAME.so).
 #define MAVBOND_FILTER_PLUGIN(T, name, version, description, options)                        \
+    MAVBOND_PLUGIN_DATA(name);                                                               \
     extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {  \
         static constexpr mavbond_plugin_descriptor kDescriptor =                            \
             ::mavbond::FilterPlugin<T>::descriptor(name, version, description, options);    \

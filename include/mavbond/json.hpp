@@ -1,6 +1,7 @@
 // A bounded JSON text writer for a plugin's status_json: writes what fits into the host's
 // buffer and counts the whole length, so the host can retry with a larger buffer (the ABI's
-// contract). FilterPlugin<T> hands one to T::status(JsonOut&).
+// contract). FilterPlugin<T> hands one to T::status(JsonOut&), and to T::describe (plain text,
+// written with raw()).
 #ifndef MAVBOND_JSON_HPP
 #define MAVBOND_JSON_HPP
 

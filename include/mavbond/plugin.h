@@ -1,10 +1,11 @@
 /* mavbond filter plugin ABI: the only header a plugin needs (plain C, no yaml-cpp, no C++).
  *
- * A plugin is a shared object exporting one symbol, MAVBOND_PLUGIN_ENTRY_SYMBOL, a function
- * returning a descriptor. The host refuses a plugin whose abi_version differs from its own,
- * whose struct_size is smaller than it knows, whose name differs from its file name, or that
- * lacks create/destroy. Plugins run on the loop thread: they never block, never start threads,
- * and use the host's timers and clock.
+ * A plugin is a shared object exporting MAVBOND_PLUGIN_ENTRY_SYMBOL, a function returning a
+ * descriptor, and (ABI 5) two plain data symbols the host reads from the file before any of
+ * the plugin's code runs: its ABI version and its name (MAVBOND_PLUGIN_DATA). The host refuses
+ * a plugin whose abi_version differs from its own, whose struct_size is smaller than it knows,
+ * whose name differs from its file name, or that lacks create/destroy. Plugins run on the
+ * loop thread: they never block, never start threads, and use the host's timers and clock.
  *
  * Lifetimes: every pointer the host passes to a hook is valid only during that call, unless
  * said otherwise. Strings are NUL-terminated UTF-8.
@@ -20,12 +21,34 @@ extern "C" {
 #endif
 
 /* Bumped on every incompatible change; the host accepts exactly its own version. */
-#define MAVBOND_PLUGIN_ABI_VERSION 4u  /* 2: the metrics hook; 3: stream positions, arrival
+#define MAVBOND_PLUGIN_ABI_VERSION 5u  /* 2: the metrics hook; 3: stream positions, arrival
                                           * times, bond positions, bond members; 4: ingress
-                                          * in batches, scope matched by the host, provides */
+                                          * in batches, scope matched by the host, provides;
+                                          * 5: the ABI version and name as data symbols,
+                                          * MAVBOND_PROVIDES_ACTIVE_LINK, a link's endpoint, its
+                                          * count markers' account,
+                                          * the far side's resend, the describe hook */
 #define MAVBOND_PLUGIN_ENTRY_SYMBOL "mavbond_plugin_entry"
+/* ABI 5: a const uint32_t holding MAVBOND_PLUGIN_ABI_VERSION and a const char array holding
+ * the plugin's name, both plain data (no relocation): the host reads them from the file, so a
+ * plugin built for another ABI or under another name is refused without running any of it. */
+#define MAVBOND_PLUGIN_ABI_SYMBOL "mavbond_plugin_abi_version"
+#define MAVBOND_PLUGIN_NAME_SYMBOL "mavbond_plugin_name"
 
 #define MAVBOND_EXPORT __attribute__((visibility("default")))
+
+/* Defines the two data symbols; once per plugin, at file scope (MAVBOND_FILTER_PLUGIN does
+ * it for C++ plugins). `name` is a string literal equal to the file name (NAME.so). */
+#ifdef __cplusplus
+#define MAVBOND_PLUGIN_DATA(name)                                                              \
+    extern "C" MAVBOND_EXPORT const uint32_t mavbond_plugin_abi_version =                      \
+        MAVBOND_PLUGIN_ABI_VERSION;                                                            \
+    extern "C" MAVBOND_EXPORT const char mavbond_plugin_name[] = name
+#else
+#define MAVBOND_PLUGIN_DATA(name)                                                              \
+    MAVBOND_EXPORT const uint32_t mavbond_plugin_abi_version = MAVBOND_PLUGIN_ABI_VERSION;     \
+    MAVBOND_EXPORT const char mavbond_plugin_name[] = name
+#endif
 
 typedef enum mavbond_verdict {
     MAVBOND_PASS = 0, /* on to the next filter, then routing or sending */
@@ -112,6 +135,9 @@ typedef struct mavbond_frame_notes {
                                                  * places, one numbering for links that number
                                                  * the stream each their own way: the bond may
                                                  * renumber (`renumber: true`) */
+#define MAVBOND_PROVIDES_ACTIVE_LINK 0x2u       /* (ABI 5) chooses the bonds' active link
+                                                 * (set_active_link): a `tx: active` bond
+                                                 * needs it, or it would send on every link */
 
 /* A link (route target) as plugins see it. Ids are dense and stable while it exists. */
 typedef struct mavbond_link {
@@ -121,6 +147,9 @@ typedef struct mavbond_link {
     uint32_t bond_id;         /* MAVBOND_NO_BOND when not in a bond */
     const char *bond_name;    /* NULL when not in a bond */
     uint32_t priority;        /* position of the link among its bond's members (0 first) */
+    const char *endpoint;     /* ABI 5: the configured endpoint it belongs to ("gcs" for
+                               * "gcs@127.0.0.1:5555"): a name that stays when a peer's address
+                               * changes (a NAT's new port), for metric labels */
 } mavbond_link;
 
 /* ABI 4: one frame of an ingress batch, as a filter gets it. */
@@ -143,13 +172,31 @@ typedef struct mavbond_link_counters {
     uint64_t tx_frames;
     uint64_t tx_bytes;
     uint64_t tx_dropped;
+    /* ABI 5: what the far side wrote on the link, by the count markers a far mavbond sends
+     * (unlike sequence gaps, frames it chose not to send there are not loss): */
+    uint32_t account_flags;   /* MAVBOND_ACCOUNT_*; the two counts are 0 without EXACT */
+    uint64_t account_expected;  /* frames the far side wrote on the link: what its markers said,
+                                 * and every frame that came in since the last one (its loss, if
+                                 * any, is told by the next marker) */
+    uint64_t account_received;  /* of them, the ones that arrived (both only grow) */
 } mavbond_link_counters;
+
+#define MAVBOND_ACCOUNT_EXACT 0x1u        /* the far side counts: the figures are exact */
+#define MAVBOND_ACCOUNT_PEER_STANDBY 0x2u /* its last marker: it keeps the link in standby */
+#define MAVBOND_ACCOUNT_MOVED 0x4u        /* another link goes on with this account (a UDP peer
+                                           * a NAT moved): its figures are that link's too */
 
 typedef struct mavbond_bond_state {
     uint32_t struct_size;
     uint32_t active_link_id;  /* UINT32_MAX: none chosen (every member sends, `tx: broadcast`) */
     uint64_t switches;        /* changes of the active link since start */
     uint8_t tx_active;        /* 1: `tx: active`, 0: `tx: broadcast` */
+    /* ABI 5: how far back the bond's far side resends, on its failover, what its standby kept
+     * off its metered members (its `resend`, as it announced it over the bond; until it has,
+     * this side's own): the resent copies come that much later than the frames' first copies,
+     * plus the links' skew. 0: no resend (no metered member). */
+    uint64_t peer_resend_ns;
+    uint8_t peer_resend_announced; /* 1: peer_resend_ns is what the far side said */
 } mavbond_bond_state;
 
 typedef enum mavbond_link_event {
@@ -292,6 +339,10 @@ typedef struct mavbond_plugin_descriptor {
     /* Calls sink(sink_ctx, &sample) once per sample (for a scrape of the metrics endpoint).
      * May be NULL. (ABI 2) */
     void (*metrics)(void *self, mavbond_metric_sink sink, void *sink_ctx);
+    /* ABI 5: one line of plain text on what the instance derived for bond `bond_id` (a setting
+     * that depends on others, and why), for the daemon's account of each bond at start and
+     * reload; returns the length it needed (0: nothing to say). May be NULL. */
+    size_t (*describe)(void *self, uint32_t bond_id, char *buf, size_t len);
 } mavbond_plugin_descriptor;
 
 typedef const mavbond_plugin_descriptor *(*mavbond_plugin_entry_fn)(void);

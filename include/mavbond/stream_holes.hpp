@@ -27,6 +27,8 @@ public:
     };
 
     bool started() const { return started_; }
+    /// The highest position delivered (once started).
+    int64_t newest() const { return newest_; }
 
     /// A frame delivered at `pos`, at t_ns. `lost` grows by the positions that fell more than
     /// kWindow behind.

@@ -211,14 +211,21 @@ TEST_F(DedupTest, FrameKeyKeepsSequenceApart) {
 }
 
 TEST_F(DedupTest, CopyAfterTheWindowPasses) {
-    ASSERT_TRUE(create("window: 500ms"));
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
     Bytes f = v2(1, kAttitude, attitude_payload(1000));
     uint64_t t = now();
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
     EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 500 * kMs));  // the window's last instant
+    // That copy came 500 ms late: the window is twice that and a margin now (1.25 s). A copy
+    // later than that passes.
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":1250.0,\"window_floor_ms\":500.0"))
+        << status();
     Bytes g = v2(2, kAttitude, attitude_payload(1001));
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, g, t + 1000 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, g, t + 1501 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, g, t + 2251 * kMs));
+    // Counted, and the window grows to cover such a copy from now on.
+    EXPECT_NE(std::string::npos, status().find("\"beyond_window\":1,")) << status();
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":2752.0")) << status();
 }
 
 TEST_F(DedupTest, WindowZeroDisablesDedup) {
@@ -866,6 +873,138 @@ TEST_F(DedupTest, LatencyStepChangesNothing) {
                 o.delivered, o.expected, o.legit_dropped, o.duplicates_passed);
     EXPECT_EQ(0, o.legit_dropped);
     EXPECT_EQ(0, o.duplicates_passed);
+}
+
+/// Arrivals of `count` frames `period_ns` apart over a link whose delay is delay(i) for frame i,
+/// keeping its order (a radio's queue).
+std::vector<Arrival> over_link(int link, int count, uint64_t start, uint64_t period_ns,
+                               const std::function<uint64_t(int)>& delay) {
+    std::vector<Arrival> out;
+    uint64_t last = 0;
+    for (int i = 0; i < count; i++) {
+        uint64_t t = std::max(last, start + i * period_ns + delay(i));
+        last = t;
+        out.push_back({t, link, i});
+    }
+    return out;
+}
+
+TEST_F(DedupTest, TheWindowFollowsALinkFallingBehind) {
+    // 50 frames/s; b, a radio whose queue fills, falls from 20 ms to 1.1 s behind over 20 s
+    // and stays there; a, LTE, 60 ms. With the window fixed at its 500 ms, every copy b brought
+    // after its lag passed 500 ms would be delivered again (1,800 of them).
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
+    const int count = 3000;
+    const uint64_t period = 20 * kMs;
+    auto frames = source_stream(count);
+    auto arrivals = over_link(0, count, now(), period, [](int) { return 60 * kMs; });
+    auto radio = over_link(1, count, now(), period, [](int i) {
+        return 20 * kMs + std::min<uint64_t>(static_cast<uint64_t>(i), 1000) * kMs * 1080 / 1000;
+    });
+    arrivals.insert(arrivals.end(), radio.begin(), radio.end());
+    in_time_order(arrivals);
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t t) { return feed(l, f, t); });
+    host_.advance(1s);  // the review logs what the window became
+    std::string s = status();
+    std::printf("falling behind: %d delivered of %d, %d copies passed, %d legitimate dropped\n%s\n",
+                o.delivered, o.expected, o.duplicates_passed, o.legit_dropped, s.c_str());
+    EXPECT_EQ(0, o.duplicates_passed);
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_NE(std::string::npos, s.find("\"beyond_window\":0,")) << "no copy ever fell out of it";
+    EXPECT_NE(std::string::npos, s.find("\"window_ms\":2330.0")) << s;  // twice 1.04 s and a margin
+    bool told = false;
+    for (const auto& line : host_.logs)
+        told = told || line.find("window now 2.33s (was 0.50s") != std::string::npos;
+    EXPECT_TRUE(told);
+}
+
+TEST_F(DedupTest, ACopyBeyondTheWindowGrowsIt) {
+    // b is 100 ms behind a for 5 s, then 1 s behind (a radio's queue after a burst): its first
+    // copies come after the 500 ms window forgot their frames and pass, counted; the window
+    // grows at the first of them, and no later copy passes.
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
+    const int count = 1500;
+    const uint64_t period = 20 * kMs;
+    auto frames = source_stream(count);
+    auto arrivals = over_link(0, count, now(), period, [](int) { return 5 * kMs; });
+    auto radio = over_link(1, count, now(), period,
+                           [](int i) { return (i < 250 ? 100 : 1000) * kMs; });
+    arrivals.insert(arrivals.end(), radio.begin(), radio.end());
+    in_time_order(arrivals);
+    std::vector<int> copies(count, 0), passed_late;
+    for (const Arrival& a : arrivals) {
+        bool first = copies[a.source]++ == 0;
+        if (feed(a.link == 0 ? *a_ : *b_, frames[a.source], a.t) == MAVBOND_PASS && !first)
+            passed_late.push_back(a.source);
+    }
+    std::string s = status();
+    std::printf("a step to 1 s behind: %zu copies passed (frames %d..%d)\n%s\n", passed_late.size(),
+                passed_late.empty() ? -1 : passed_late.front(),
+                passed_late.empty() ? -1 : passed_late.back(), s.c_str());
+    // The frames whose first copies came between 1 s and 500 ms before b's first late copy.
+    ASSERT_FALSE(passed_late.empty());
+    EXPECT_LE(passed_late.size(), 30u);
+    EXPECT_LT(passed_late.back(), 300);
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":" + std::to_string(passed_late.size())))
+        << s;
+    EXPECT_NE(std::string::npos, s.find("\"beyond_window\":" + std::to_string(passed_late.size()))) << s;
+    EXPECT_NE(std::string::npos, s.find("\"window_ms\":2240.0")) << s;  // twice the 0.995 s seen, a margin
+}
+
+TEST_F(DedupTest, TheWindowCoversTheFarSidesResend) {
+    // The far side resends, on its failover, the last second it held back from its metered
+    // link: those copies come a second after the radio's. The host says so (bond_state): a
+    // 500 ms window remembers 1.25 s from the next review on.
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
+    host_.peer_resend[0] = 1'000 * kMs;
+    char line[512];
+    size_t n = plugin_->describe(self_, 0, line, sizeof line);
+    ASSERT_GT(n, 0u);
+    EXPECT_NE(std::string::npos, std::string(line).find("remembered 1.25s, at least its window 0.50s, "
+                                                        "to cover the far side's resend of 1.00s"))
+        << line;
+    host_.advance(1s);
+    const int count = 200;  // 4 s at 50 frames/s over the radio (a), cut at frame 150
+    auto frames = source_stream(count);
+    uint64_t start = now();
+    int dup = 0;
+    for (int i = 0; i < 150; i++)
+        EXPECT_EQ(MAVBOND_PASS, feed(*a_, frames[i], start + i * 20 * kMs));
+    // The failover, 200 ms after the cut: b (LTE) brings what was held back over the last
+    // second (from frame 110), then the rest.
+    uint64_t t = start + 150 * 20 * kMs + 200 * kMs;
+    for (int i = 110; i < count; i++)
+        dup += feed(*b_, frames[i], t + static_cast<uint64_t>(i) * kMs) == MAVBOND_PASS && i < 150;
+    EXPECT_EQ(0, dup);
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"duplicates\":40,")) << s;
+}
+
+TEST_F(DedupTest, TheWindowComesBackDownAndHasABound) {
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
+    Bytes f = v2(1, kAttitude, attitude_payload(1000));
+    uint64_t t = now();
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 400 * kMs));
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":1050.0")) << status();
+    // Nothing that late for one to two epochs: back to the floor, told.
+    host_.advance(61s);
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":500.0")) << status();
+    EXPECT_NE(std::string::npos, host_.logs.back().find("window now 0.50s (was 1.05s")) << host_.logs.back();
+    // However late a copy comes, the window stays within 15 s: memory for an outage's backlog
+    // is no link's delay.
+    Bytes g = v2(2, kAttitude, attitude_payload(2000));
+    t = now();
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, g, t));
+    host_.advance(400ms);
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, g, now()));
+    Bytes h = v2(3, kAttitude, attitude_payload(3000));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, h, now()));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, h, now() + 30'000 * kMs)) << "beyond the window, counted";
+    Bytes k = v2(4, kAttitude, attitude_payload(4000));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, k, now() + 30'001 * kMs));
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":15000.0")) << status();
 }
 
 TEST_F(DedupTest, RestartedCounterIsFollowed) {

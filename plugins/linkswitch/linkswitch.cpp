@@ -249,6 +249,7 @@ constexpr double kGapHalfLife = 5e9;
 struct Link {
     bool present = false;
     std::string name;
+    std::string endpoint;  // its configured endpoint (a peer's server): the metric label
     uint32_t bond = kNone;  // index into LinkSwitch::bonds_, kNone: not in a bond in scope
     uint32_t member_order = 0;  // the host's position among the bond's members
     bool heard = false;
@@ -378,6 +379,8 @@ int LinkSwitch::init(const mavbond_config* cfg, char* err, size_t err_len) {
     scope_bonds_.assign(bonds, bonds + bond_count);
     if (check_priority(cfg, err, err_len) != 0)
         return -1;
+    // It chooses the active link of the bonds in its scope: what `tx: active` sends on.
+    api_->provides(h_, MAVBOND_PROVIDES_ACTIVE_LINK);
 
     size_t n = api_->links(h_, nullptr, 0);
     std::vector<const mavbond_link*> all(n);
@@ -473,6 +476,7 @@ void LinkSwitch::adopt(const mavbond_link* l) {
         link = Link{};
         link.present = true;
         link.name = l->name ? l->name : "?";
+        link.endpoint = l->endpoint ? l->endpoint : link.name;
         link.last_heard_ns = api_->now_ns(h_);
         link.window.init(loss_window_);
     }
@@ -848,8 +852,9 @@ void LinkSwitch::metrics(mavbond::MetricOut& out) {
                     b.untracked, {{"bond", b.name.c_str()}});
         for (uint32_t id : b.members) {
             Link& l = links_[id];
+            // The endpoint's name: a peer's address changes with its NAT port, a label must not.
             std::initializer_list<mavbond_label> labels = {{"bond", b.name.c_str()},
-                                                           {"link", l.name.c_str()}};
+                                                           {"link", l.endpoint.c_str()}};
             out.gauge("active", "1 for the link linkswitch made active, 0 for the others.",
                       id == b.active ? 1 : 0, labels);
             out.gauge("alive", "1 while a link is heard (within switch_after).",

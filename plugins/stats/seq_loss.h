@@ -8,6 +8,8 @@
 // fills a gap already counted as lost gives that loss back, so reordering never inflates loss.
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <memory>
 
@@ -55,17 +57,18 @@ public:
         return {0, 0};
     }
 
-private:
-    static constexpr uint8_t kMaxGap = 128;   // forward steps at least this far are not gaps
-    static constexpr uint8_t kHistory = 64;   // how far back a late frame can fill a gap
-    static constexpr uint8_t kResyncRun = 3;  // odd frames in a row that mean "start over"
-
+    /// Follows the source from `seq` on, with nothing before it to fill.
     void restart(uint8_t seq) {
         started_ = true;
         last_ = seq;
         seen_ = ~uint64_t{0};  // before the first frame: nothing to fill
         odd_run_ = 0;
     }
+
+private:
+    static constexpr uint8_t kMaxGap = 128;   // forward steps at least this far are not gaps
+    static constexpr uint8_t kHistory = 64;   // how far back a late frame can fill a gap
+    static constexpr uint8_t kResyncRun = 3;  // odd frames in a row that mean "start over"
 
     uint64_t seen_ = 0;  // bit i: seq (last_ - i) arrived
     uint8_t last_ = 0;
@@ -90,17 +93,72 @@ private:
 /// The delivered stream of a bond: by position when the frame has one (a copy from a slower
 /// link fills its hole however far behind a burst it comes), else by sequence number. Holes
 /// become lost after StreamHoles' hold, at a frame or an expire() call.
+///
+/// A source that starts its numbering again (a GCS reconnecting, an autopilot rebooting) is
+/// no loss: where the host saw its numbering restart (MAVBOND_STREAM_RESYNC), or the bond's
+/// position leaps kMaxLeap or more (modulo 256 such a step says nothing: dedup placed the
+/// first frames of a new numbering a turn away), the source is followed from there with no
+/// hole for the leap. A position dedup placed one step on from the newest is read as such,
+/// whatever the host saw of one link's numbering: after an outage on every link, a link whose
+/// own step it could not read is flagged MAVBOND_STREAM_RESYNC though dedup placed its frames
+/// right (a second of a 124 frames/s stream lost on both links read as 24 lost of 148). So
+/// is a source that went quiet: unheard for kQuietNs
+/// or more while every link that brought it was heard throughout, it stopped sending (its
+/// links would have brought its frames, as they brought the others'); a new numbering then
+/// steps forward as often as back (MAVProxy's 192 to 0 read as 63 lost). A source unheard
+/// because its links were silent comes back with its loss counted.
 class DeliveredLoss {
 public:
-    /// A delivered frame; `pos` its bond position, nullptr when dedup did not place it.
-    SeqStep step(uint8_t sysid, uint8_t compid, const int64_t* pos, uint8_t seq, int64_t t_ns) {
+    static constexpr int64_t kMaxLeap = 128;
+    static constexpr int64_t kQuietNs = 5'000'000'000;  // a source's or a link's silence
+    static constexpr uint32_t kMembers = 64;             // members followed (more: never quiet)
+
+    /// A frame came in on the bond's member `member` at t_ns, delivered or a copy (after
+    /// step() for it: a step judges what came before).
+    void heard(uint32_t member, int64_t t_ns) {
+        if (member >= kMembers)
+            return;
+        Hearing& h = members_[member];
+        if (h.last == kNever || t_ns - h.last >= kQuietNs)
+            h.back = t_ns;
+        h.last = std::max(h.last, t_ns);
+    }
+
+    /// A delivered frame, that came on `member` (heard() next); `pos` its bond position,
+    /// nullptr when dedup did not place it; `stream_flags` the host's MAVBOND_STREAM_* of the
+    /// link it came on.
+    SeqStep step(uint8_t sysid, uint8_t compid, const int64_t* pos, uint8_t seq, int64_t t_ns,
+                 uint32_t stream_flags = 0, uint32_t member = kMembers) {
         Source* s = sources_.find(sysid, compid);
         if (!s)
             return SeqStep{1, 0};
-        if (!pos)
+        const bool quiet = s->last_ns != kNever && t_ns - s->last_ns >= kQuietNs &&
+                           heard_throughout(s->members, s->last_ns, t_ns);
+        s->last_ns = std::max(s->last_ns, t_ns);
+        if (member < kMembers)
+            s->members |= uint64_t{1} << member;
+        if (!pos) {
+            if (quiet) {
+                s->seq.restart(seq);
+                return SeqStep{1, 0};
+            }
             return s->seq.step(seq);
-        if (!s->holes)
+        }
+        if (s->holes && s->holes->started() &&
+            (quiet || *pos - s->holes->newest() >= kMaxLeap ||
+             ((stream_flags & MAVBOND_STREAM_RESYNC) && *pos <= s->holes->newest()))) {
+            // The source goes on from here: holes still waiting for a late copy are forgotten,
+            // and a frame from before this point is no late copy of one.
+            s->holes.reset();
+            s->restart_at = *pos;
+        }
+        if (!s->holes) {
             s->holes = std::make_unique<mavbond::StreamHoles>();
+            if (s->restart_at == kNever)
+                s->restart_at = *pos;
+        }
+        if (*pos < s->restart_at)
+            return SeqStep{1, 0};
         uint64_t lost = s->holes->expire(t_ns);
         switch (s->holes->deliver(*pos, t_ns, lost)) {
         case mavbond::StreamHoles::Arrival::New:
@@ -124,11 +182,34 @@ public:
     }
 
 private:
+    static constexpr int64_t kNever = INT64_MIN;
     struct Source {
         SeqTracker seq;
         std::unique_ptr<mavbond::StreamHoles> holes;  // from its first frame with a position
+        int64_t restart_at = kNever;  // where the holes are counted from
+        int64_t last_ns = kNever;     // its last delivered frame
+        uint64_t members = 0;         // bit m: member m delivered it
     };
+    struct Hearing {
+        int64_t last = kNever;  // its last frame
+        int64_t back = kNever;  // its first frame after its last silence of kQuietNs or more
+    };
+
+    /// Whether every member in `mask` (at least one) was heard from `from` to `to` with no
+    /// silence of kQuietNs or more.
+    bool heard_throughout(uint64_t mask, int64_t from, int64_t to) const {
+        if (!mask)
+            return false;
+        for (uint32_t m = 0; m < kMembers; m++) {
+            const Hearing& h = members_[m];
+            if ((mask >> m & 1) && (h.back > from || to - h.last >= kQuietNs))
+                return false;
+        }
+        return true;
+    }
+
     mavbond::SourceTable<Source, 64> sources_;
+    std::array<Hearing, kMembers> members_{};
 };
 
 /// Loss as a fraction of expected frames; negative totals (late frames filling gaps counted

@@ -1,7 +1,9 @@
 // stats: an observer (always PASS) that turns what the links deliver into numbers.
 //
 // Per link: frames and bytes seen on ingress, the host's CRC error and garbage counters, and
-// loss from MAVLink sequence gaps per source. Per bond: what was delivered (member frames no
+// its loss: exact where the far side is mavbond (its count markers say how many frames it wrote
+// on the link, the host counts what arrived), else from MAVLink sequence gaps per source (which
+// also count what the far side chose not to send there). Each figure says which it is. Per bond: what was delivered (member frames no
 // earlier filter dropped), duplicates and stale frames dropped (from dedup's notes), the loss
 // of the delivered stream (the figure the paper improves), the latency skew between links
 // (from dedup's skew_ns), and the active link from the host. Every `interval` a log line and
@@ -13,6 +15,7 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -39,7 +42,9 @@ const mavbond_option kOptions[] = {
      "how often the figures are summarised (log line, CSV rows, interval figures)"},
     {"csv", MAVBOND_OPT_STRING, nullptr,
      "append one row per interval per link and bond to this CSV file (default: none)"},
-    {"log", MAVBOND_OPT_BOOL, "true", "log one summary line per interval"},
+    // Off by default: a line a second is 86,400 journal lines a day on a Pi, and `mavbondctl
+    // watch`, status, /metrics and the CSV show the same figures.
+    {"log", MAVBOND_OPT_BOOL, "false", "log one summary line per interval"},
     {nullptr, MAVBOND_OPT_BOOL, nullptr, nullptr},
 };
 
@@ -75,6 +80,7 @@ struct Skew {
 
 /// Counters that only grow; interval figures are differences of two of these.
 struct LinkTotals {
+    bool by_markers = false;  // received and lost are the count markers' figures
     uint64_t frames = 0;
     uint64_t bytes = 0;
     int64_t received = 0;  // distinct sequence numbers
@@ -97,12 +103,56 @@ struct BondTotals {
     double skew_max_ms = 0;
 };
 
+/// What a link's loss is read from.
+enum class Basis { Sequence, Markers };
+const char* basis_name(Basis b) { return b == Basis::Markers ? "markers" : "sequence"; }
+
+/// A link's figures that /metrics sums per endpoint (a server's peers, present and past, are
+/// one series: a NAT's new port changes no label).
+struct Counted {
+    uint64_t frames = 0, bytes = 0, crc_errors = 0;
+    int64_t seq_received = 0, seq_lost = 0;          // by sequence gaps
+    uint64_t acct_expected = 0, acct_received = 0;   // by the far side's count markers
+    bool markers = false;                            // a far side ever counted
+    Counted& operator+=(const Counted& o) {
+        frames += o.frames;
+        bytes += o.bytes;
+        crc_errors += o.crc_errors;
+        seq_received += o.seq_received;
+        seq_lost += o.seq_lost;
+        acct_expected += o.acct_expected;
+        acct_received += o.acct_received;
+        markers = markers || o.markers;
+        return *this;
+    }
+};
+
 struct LinkStats {
     bool present = false;
     std::string name;
+    std::string endpoint;   // the configured endpoint (a peer's server): the metric label
     uint32_t bond = kNone;  // index into Stats::bonds_
     uint32_t member = 0;    // position among the bond's members
-    LinkTotals total, prev, interval;
+    LinkTotals total, prev, interval;  // received/lost by `basis`
+    Basis basis = Basis::Sequence;
+    bool peer_standby = false;  // the far side's last marker: it keeps the link in standby
+    int64_t seq_received = 0, seq_lost = 0;  // every frame's step, whatever the basis
+    uint64_t acct_expected = 0, acct_received = 0;  // the host's, once the far side counts
+    bool acct_moved = false;  // another link of the endpoint goes on with this account
+    /// What /metrics counts of it: its sequence figures only until the far side counts (then
+    /// they stop, kept in the endpoint's retired figures, and the markers' go on); its
+    /// markers' none once another link carries them on (counted there: a rebound peer's
+    /// series read twice its frames).
+    Counted counted() const {
+        Counted c{total.frames, total.bytes, total.crc_errors, 0, 0,
+                  acct_moved ? 0 : acct_expected, acct_moved ? 0 : acct_received,
+                  basis == Basis::Markers};
+        if (basis == Basis::Sequence) {
+            c.seq_received = seq_received;
+            c.seq_lost = seq_lost;
+        }
+        return c;
+    }
 };
 
 struct BondStats {
@@ -136,6 +186,8 @@ public:
 
 private:
     void adopt(const mavbond_link* l);
+    /// The host's counters of a link now: CRC errors, garbage, its count markers' account
+    /// (the basis of its loss moves to it when the far side starts counting).
     void refresh_counters(LinkStats& l);
     void write_csv(double t);
     void write_log();
@@ -143,12 +195,15 @@ private:
     const mavbond_host_api* api_;
     mavbond_host* h_;
     uint64_t interval_ns_ = 1'000'000'000;
-    bool log_ = true;
+    bool log_ = false;
     std::string csv_path_;
     FILE* csv_ = nullptr;
     uint64_t start_ns_ = 0;
     uint64_t intervals_ = 0;
     std::vector<LinkStats> links_;      // by link id
+    /// Per endpoint: the figures of its links that went away, and the sequence figures of
+    /// those whose far side started counting (so every series only grows).
+    std::map<std::string, Counted> retired_;
     std::vector<BondStats> bonds_;
     std::vector<uint32_t> bond_index_;  // bond id -> index into bonds_
     bool timer_ = false;
@@ -209,6 +264,7 @@ void Stats::adopt(const mavbond_link* l) {
         link = LinkStats{};
         link.present = true;
         link.name = l->name ? l->name : "?";
+        link.endpoint = l->endpoint ? l->endpoint : link.name;
     }
     link.member = l->priority;
     if (l->bond_id == MAVBOND_NO_BOND || !l->bond_name)
@@ -247,9 +303,9 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
     uint32_t flags = notes ? notes->flags : 0;
     l.total.frames++;
     l.total.bytes += f->raw_len;
-    // The host tracks each link's positions per source: its loss is the gaps in them.
-    l.total.received += (f->stream_flags & MAVBOND_STREAM_REPEAT) ? 0 : 1;
-    l.total.lost += f->stream_lost;
+    // The host tracks each link's positions per source: the gaps in them.
+    l.seq_received += (f->stream_flags & MAVBOND_STREAM_REPEAT) ? 0 : 1;
+    l.seq_lost += f->stream_lost;
     if (l.bond == kNone)
         return;
 
@@ -262,7 +318,8 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
         // every link's copy, whatever each link's own counter), else by its own numbers.
         const int64_t* pos = notes && (flags & MAVBOND_NOTE_POSITION) ? &notes->bond_pos : nullptr;
         SeqStep d = b.delivered_sources.step(f->sysid, f->compid, pos, f->seq,
-                                             static_cast<int64_t>(f->rx_time_ns));
+                                             static_cast<int64_t>(f->rx_time_ns), f->stream_flags,
+                                             l.member);
         b.total.received += d.received;
         b.total.lost += d.lost;
     } else {
@@ -271,6 +328,7 @@ void Stats::on_ingress(const mavbond_frame* f, const mavbond_frame_notes* notes,
         else if (flags & MAVBOND_NOTE_STALE)
             b.total.stale++;
     }
+    b.delivered_sources.heard(l.member, static_cast<int64_t>(f->rx_time_ns));
     if ((flags & MAVBOND_NOTE_DUPLICATE) && notes) {
         double ms = static_cast<double>(notes->skew_ns < 0 ? -notes->skew_ns : notes->skew_ns) /
                     kNsPerMs;
@@ -291,10 +349,14 @@ void Stats::on_link(const mavbond_link* link, mavbond_link_event event) {
         adopt(link);
         return;
     }
-    // A removed link keeps its figures (a learned UDP peer that went quiet is still history);
-    // it is only left out of the interval rows from now on.
-    if (link->id < links_.size())
-        links_[link->id].present = false;
+    // A removed link's figures stay in its endpoint's series (a learned UDP peer that went
+    // quiet, or moved to a new port, is still history); it leaves the status and the rows.
+    if (link->id >= links_.size() || !links_[link->id].present)
+        return;
+    LinkStats& l = links_[link->id];
+    refresh_counters(l);  // the host still has its counters while we hear it go
+    retired_[l.endpoint] += l.counted();
+    l.present = false;
 }
 
 void Stats::refresh_counters(LinkStats& l) {
@@ -304,6 +366,28 @@ void Stats::refresh_counters(LinkStats& l) {
     if (api_->link_counters(h_, id, &c) == 0) {
         l.total.crc_errors = c.crc_errors;
         l.total.garbage_bytes = c.garbage_bytes;
+        if (c.account_flags & MAVBOND_ACCOUNT_EXACT) {
+            l.acct_expected = c.account_expected;
+            l.acct_received = c.account_received;
+            l.peer_standby = (c.account_flags & MAVBOND_ACCOUNT_PEER_STANDBY) != 0;
+            l.acct_moved = (c.account_flags & MAVBOND_ACCOUNT_MOVED) != 0;
+            if (l.basis == Basis::Sequence) {
+                // The far side counts from now: the sequence figures so far stay in the
+                // endpoint's series, frozen; this link's loss is the markers' from here on.
+                Counted seq;
+                seq.seq_received = l.seq_received;
+                seq.seq_lost = l.seq_lost;
+                retired_[l.endpoint] += seq;
+                l.basis = Basis::Markers;
+            }
+        }
+    }
+    if (l.basis == Basis::Markers) {
+        l.total.received = static_cast<int64_t>(l.acct_received);
+        l.total.lost = static_cast<int64_t>(l.acct_expected) - static_cast<int64_t>(l.acct_received);
+    } else {
+        l.total.received = l.seq_received;
+        l.total.lost = l.seq_lost;
     }
 }
 
@@ -314,7 +398,13 @@ int Stats::tick() {
         if (!l.present)
             continue;
         refresh_counters(l);
-        l.interval = LinkTotals{l.total.frames - l.prev.frames,
+        l.total.by_markers = l.basis == Basis::Markers;
+        if (l.prev.by_markers != l.total.by_markers) {  // the far side began to count
+            l.prev.received = l.total.received;
+            l.prev.lost = l.total.lost;
+        }
+        l.interval = LinkTotals{l.total.by_markers,
+                                l.total.frames - l.prev.frames,
                                 l.total.bytes - l.prev.bytes,
                                 l.total.received - l.prev.received,
                                 l.total.lost - l.prev.lost,
@@ -478,15 +568,21 @@ void Stats::status(JsonOut& out) {
         out.raw("%s{\"name\":", first ? "" : ",");
         first = false;
         out.str(l.name.c_str());
+        out.raw(",\"endpoint\":");
+        out.str(l.endpoint.c_str());
         out.raw(",\"bond\":");
         // "" rather than null for "none", as in the host's own status document.
         out.str(l.bond == kNone ? "" : bonds_[l.bond].name.c_str());
-        out.raw(",\"frames\":%llu,\"bytes\":%llu,\"lost\":%lld,\"loss_pct\":",
+        // lost and loss_pct by `basis`: "markers" (what the far side wrote on the link,
+        // exact) or "sequence" (gaps in the sources' sequence numbers).
+        out.raw(",\"frames\":%llu,\"bytes\":%llu,\"basis\":\"%s\",\"expected\":%lld,"
+                "\"lost\":%lld,\"loss_pct\":",
                 static_cast<unsigned long long>(t.frames), static_cast<unsigned long long>(t.bytes),
+                basis_name(l.basis), static_cast<long long>(t.received + t.lost),
                 static_cast<long long>(std::max<int64_t>(t.lost, 0)));
         out.num(loss_fraction(t.received, t.lost) * 100);
-        out.raw(",\"crc_errors\":%llu,\"garbage_bytes\":%llu",
-                static_cast<unsigned long long>(t.crc_errors),
+        out.raw(",\"peer_standby\":%s,\"crc_errors\":%llu,\"garbage_bytes\":%llu",
+                l.peer_standby ? "true" : "false", static_cast<unsigned long long>(t.crc_errors),
                 static_cast<unsigned long long>(t.garbage_bytes));
         const LinkTotals& i = l.interval;
         out.raw(",\"interval\":{\"frames\":%llu,\"bytes\":%llu,\"lost\":%lld,\"loss_pct\":",
@@ -570,25 +666,60 @@ void Stats::status(JsonOut& out) {
 /// received): both only grow, even when a late frame fills a gap counted as lost, and
 /// 1 - rate(received) / rate(expected) is the loss over any window Prometheus looks at.
 void Stats::metrics(mavbond::MetricOut& out) {
+    // One series per configured endpoint (labels never carry a peer's address), each figure
+    // summed over its links, present and past.
+    std::map<std::string, std::pair<Counted, const char*>> by_endpoint;  // -> (figures, bond)
+    for (const auto& [endpoint, c] : retired_)
+        by_endpoint[endpoint].first += c;
     for (LinkStats& l : links_) {
         if (!l.present)
             continue;
         refresh_counters(l);
-        const LinkTotals& t = l.total;
-        const char* bond = l.bond == kNone ? "" : bonds_[l.bond].name.c_str();
-        std::initializer_list<mavbond_label> labels = {{"link", l.name.c_str()}, {"bond", bond}};
+        auto& e = by_endpoint[l.endpoint];
+        e.first += l.counted();
+        e.second = l.bond == kNone ? "" : bonds_[l.bond].name.c_str();
+    }
+    for (auto& [endpoint, e] : by_endpoint) {
+        const Counted& c = e.first;
+        if (!e.second) {  // only links gone: their bond, from any link of the endpoint seen
+            e.second = "";
+            for (const LinkStats& l : links_) {
+                if (l.endpoint == endpoint && l.bond != kNone)
+                    e.second = bonds_[l.bond].name.c_str();
+            }
+        }
+        std::initializer_list<mavbond_label> labels = {{"link", endpoint.c_str()}, {"bond", e.second}};
         out.counter("link_frames", "Frames a link received (every copy, before any filter).",
-                    t.frames, labels);
-        out.counter("link_bytes", "Bytes of the frames a link received.", t.bytes, labels);
-        out.counter("link_expected_frames",
-                    "Frames a link should have received, from MAVLink sequence numbers.",
-                    static_cast<uint64_t>(std::max<int64_t>(t.received + t.lost, 0)), labels);
-        out.counter("link_received_frames",
-                    "Distinct sequence numbers a link received (expected minus lost).",
-                    static_cast<uint64_t>(t.received), labels);
-        out.gauge("link_loss_ratio", "A link's loss since the start (0..1).",
-                  loss_fraction(t.received, t.lost), labels);
-        out.counter("link_crc_errors", "Frames with a bad CRC on a link.", t.crc_errors, labels);
+                    c.frames, labels);
+        out.counter("link_bytes", "Bytes of the frames a link received.", c.bytes, labels);
+        out.counter("link_crc_errors", "Frames with a bad CRC on a link.", c.crc_errors, labels);
+        // Loss as expected and received frames (lost = expected - received): both only grow,
+        // even when a late frame fills a gap counted as lost, so 1 - rate(received) /
+        // rate(expected) is the loss over any window. By basis: "markers", what the far side
+        // wrote on the link (a far mavbond's count markers: exact); "sequence", the gaps in the
+        // sources' sequence numbers (until the far side counts, or where it never does).
+        auto loss = [&](const char* basis, int64_t expected, int64_t received) {
+            std::initializer_list<mavbond_label> with_basis = {
+                {"link", endpoint.c_str()}, {"bond", e.second}, {"basis", basis}};
+            out.counter("link_expected_frames",
+                        "Frames a link should have received: what the far side wrote on it "
+                        "(basis markers), or what its sequence numbers say (basis sequence).",
+                        static_cast<uint64_t>(std::max<int64_t>(expected, 0)), with_basis);
+            out.counter("link_received_frames",
+                        "Of a link's expected frames, those that arrived (expected minus lost).",
+                        static_cast<uint64_t>(std::max<int64_t>(received, 0)), with_basis);
+        };
+        const bool has_sequence = c.seq_received + c.seq_lost > 0 || !c.markers;
+        if (has_sequence)
+            loss("sequence", c.seq_received + c.seq_lost, c.seq_received);
+        if (c.markers)
+            loss("markers", static_cast<int64_t>(c.acct_expected), static_cast<int64_t>(c.acct_received));
+        const int64_t received = c.markers ? static_cast<int64_t>(c.acct_received) : c.seq_received;
+        const int64_t lost = c.markers ? static_cast<int64_t>(c.acct_expected) - received : c.seq_lost;
+        out.gauge("link_loss_ratio",
+                  "A link's loss since the start (0..1), by the basis its label names.",
+                  loss_fraction(received, lost),
+                  {{"link", endpoint.c_str()}, {"bond", e.second}, {"basis", c.markers ? "markers" : "sequence"}});
     }
     for (BondStats& b : bonds_) {
         const BondTotals& t = b.total;

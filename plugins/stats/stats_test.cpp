@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -226,8 +227,8 @@ TEST_F(StatsTest, LinkLossFromSequenceGapsWithWrap) {
     for (int s : {250, 251, 252, 253, 255, 0, 1, 2, 4, 5})
         send("radio", static_cast<uint8_t>(s));
     std::string radio = object("links", "radio");
-    EXPECT_TRUE(has(radio, "\"bond\":\"vehicle\",\"frames\":10,\"bytes\":210,\"lost\":2,"
-                           "\"loss_pct\":16.667"))
+    EXPECT_TRUE(has(radio, "\"bond\":\"vehicle\",\"frames\":10,\"bytes\":210,\"basis\":\"sequence\","
+                           "\"expected\":12,\"lost\":2,\"loss_pct\":16.667"))
         << radio;
 }
 
@@ -235,7 +236,7 @@ TEST_F(StatsTest, ReorderingDoesNotInflateLoss) {
     create();
     for (int s : {0, 1, 3, 2, 4, 6, 5, 7})
         send("radio", static_cast<uint8_t>(s));
-    EXPECT_TRUE(has(object("links", "radio"), "\"frames\":8,\"bytes\":168,\"lost\":0,"))
+    EXPECT_TRUE(has(object("links", "radio"), "\"frames\":8,\"bytes\":168,\"basis\":\"sequence\",\"expected\":8,\"lost\":0,"))
         << object("links", "radio");
 }
 
@@ -248,7 +249,8 @@ TEST_F(StatsTest, SourcesAreCountedSeparately) {
         if (i != 4)
             send("radio", static_cast<uint8_t>(100 + i), 1, 154);
     }
-    EXPECT_TRUE(has(object("links", "radio"), "\"frames\":19,\"bytes\":399,\"lost\":1,"))
+    EXPECT_TRUE(has(object("links", "radio"), "\"frames\":19,\"bytes\":399,\"basis\":\"sequence\",\"expected\":20,"
+                                          "\"lost\":1,"))
         << object("links", "radio");
 }
 
@@ -280,7 +282,7 @@ TEST_F(StatsTest, BondFiguresComeFromTheNotes) {
                           "\"mean\":18.889,\"p50\":10.000,\"max\":30.000}]}"))
         << bond;
     // Per link, lte lost nothing by sequence (its dropped copies still arrived).
-    EXPECT_TRUE(has(object("links", "lte"), "\"frames\":11,\"bytes\":231,\"lost\":0,"))
+    EXPECT_TRUE(has(object("links", "lte"), "\"frames\":11,\"bytes\":231,\"basis\":\"sequence\",\"expected\":11,\"lost\":0,"))
         << object("links", "lte");
 }
 
@@ -315,6 +317,108 @@ TEST_F(StatsTest, DeliveredLossByPositionTakesLateCopiesBehindABurst) {
         << object("bonds", "vehicle");
 }
 
+// Found with two gateways and a GCS that reconnected (its counter from 0 again): dedup placed
+// the new numbering's first frames a turn of 256 ahead, then back when the host saw the
+// numbering restart; each reconnect was ~255 "lost" in the delivered stream.
+TEST_F(StatsTest, ASourceThatStartsItsNumberingAgainIsNoLoss) {
+    create("log: false");
+    auto deliver = [&](int64_t pos, uint32_t stream_flags) {
+        auto raw = test_frame(static_cast<uint8_t>(pos), 255, 190);
+        mavbond_frame f = host_.frame(raw, host_.link("radio"));
+        f.stream_flags = stream_flags;
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        notes.flags = MAVBOND_NOTE_POSITION;
+        notes.bond_pos = pos;
+        host_.ingress(f, notes, host_.link("radio"));
+        host_.advance(milliseconds(200));  // a HEARTBEAT at 5 Hz
+    };
+    for (int64_t p = 0; p < 70; p++)
+        deliver(p, 0);
+    deliver(256, 0);  // the new numbering's seq 0, placed a turn ahead
+    deliver(257, 0);
+    deliver(258, 0);
+    for (int64_t p = 3; p < 40; p++)  // the host saw the restart: dedup places it anew
+        deliver(p + 70, p == 3 ? MAVBOND_STREAM_RESYNC : 0);
+    host_.advance(seconds(3));  // every hole has waited long enough
+    EXPECT_TRUE(has(object("bonds", "vehicle"), "\"delivered\":110,\"duplicates\":0,\"stale\":0,"
+                                                "\"delivered_lost\":0,"))
+        << object("bonds", "vehicle");
+    // Yet a frame lost after the restart is loss.
+    deliver(111, 0);
+    host_.advance(seconds(3));
+    EXPECT_TRUE(has(object("bonds", "vehicle"), "\"delivered_lost\":1,")) << object("bonds", "vehicle");
+}
+
+// Found with two links cut together for a second of a 124 frames/s stream: the link that came
+// back first stepped further than its numbers could tell, the host flagged its numbering
+// restarted, and dedup placed its frames right, one step on from the newest. Read as a
+// restart, the second's 124 frames lost on both links were not counted.
+TEST_F(StatsTest, AFramePlacedOneStepOnIsNoRestartWhateverTheLinkSaw) {
+    create("log: false");
+    auto deliver = [&](int64_t pos, uint32_t stream_flags) {
+        auto raw = test_frame(static_cast<uint8_t>(pos), 1, 1);
+        mavbond_frame f = host_.frame(raw, host_.link("radio"));
+        f.stream_flags = stream_flags;
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        notes.flags = MAVBOND_NOTE_POSITION;
+        notes.bond_pos = pos;
+        host_.ingress(f, notes, host_.link("radio"));
+        host_.advance(milliseconds(8));
+    };
+    for (int64_t p = 0; p < 300; p++)
+        deliver(p, 0);
+    host_.advance(seconds(1));  // both links cut: 124 frames lost on both
+    deliver(424, 0);            // dedup placed the first one back by time
+    deliver(425, MAVBOND_STREAM_RESYNC);  // and the host saw the radio's numbering anew
+    for (int64_t p = 426; p < 500; p++)
+        deliver(p, 0);
+    host_.advance(seconds(3));
+    EXPECT_TRUE(has(object("bonds", "vehicle"), "\"delivered_lost\":124,")) << object("bonds", "vehicle");
+}
+
+// Found with MAVProxy through the shipped pair: it quit at sequence 192 and a new one
+// started 11 s later at 0, a step of 64 forward, and the air side counted 63 frames lost on
+// every link while both links brought the ground's reports all along.
+TEST_F(StatsTest, ASourceThatWentQuietWhileItsLinksWereHeardIsNoLoss) {
+    create("log: false");
+    auto deliver = [&](const std::string& link, uint8_t sysid, uint8_t compid, int64_t pos) {
+        auto raw = test_frame(static_cast<uint8_t>(pos), sysid, compid);
+        mavbond_frame f = host_.frame(raw, host_.link(link));
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        notes.flags = MAVBOND_NOTE_POSITION;
+        notes.bond_pos = pos;
+        host_.ingress(f, notes, host_.link(link));
+    };
+    int64_t report = 0;  // the far gateway's own frames, a second apart on each link
+    auto second = [&](bool radio_heard) {
+        if (radio_heard)
+            deliver("radio", 1, 192, report++);
+        deliver("lte", 1, 192, report++);
+        host_.advance(seconds(1));
+    };
+    for (int64_t p = 0; p <= 192; p++) {  // the first GCS: 193 frames, on the radio
+        deliver("radio", 255, 230, p);
+        if (p % 10 == 0)
+            second(true);
+    }
+    for (int i = 0; i < 11; i++)  // no GCS: the links are heard
+        second(true);
+    for (int64_t p = 256; p < 266; p++)  // the next GCS at 0: dedup continues a step of 64
+        deliver("radio", 255, 230, p);
+    host_.advance(seconds(3));
+    EXPECT_TRUE(has(object("bonds", "vehicle"), "\"delivered_lost\":0,")) << object("bonds", "vehicle");
+    // Quiet while the one link that brought it was silent too: what it sent meanwhile was lost.
+    for (int i = 0; i < 11; i++)
+        second(false);
+    for (int64_t p = 276; p < 280; p++)  // 10 frames on from the last
+        deliver("radio", 255, 230, p);
+    host_.advance(seconds(3));
+    EXPECT_TRUE(has(object("bonds", "vehicle"), "\"delivered_lost\":10,")) << object("bonds", "vehicle");
+}
+
 TEST_F(StatsTest, ActiveLinkAndSwitchesFromTheHost) {
     create();
     std::string bond = object("bonds", "vehicle");
@@ -341,7 +445,7 @@ TEST_F(StatsTest, CrcErrorsFromTheHostCounters) {
 }
 
 TEST_F(StatsTest, IntervalFiguresAndOneLogLinePerInterval) {
-    create("interval: 1s");
+    create("interval: 1s\nlog: true");
     for (int i = 0; i < 10; i++) {
         if (i != 5)
             send("radio", static_cast<uint8_t>(i));
@@ -356,9 +460,137 @@ TEST_F(StatsTest, IntervalFiguresAndOneLogLinePerInterval) {
     host_.advance(seconds(1));
     ASSERT_EQ(host_.logs.size(), 2u);
     std::string radio = object("links", "radio");
-    EXPECT_TRUE(has(radio, "\"frames\":19,\"bytes\":399,\"lost\":1,")) << radio;
+    EXPECT_TRUE(has(radio, "\"frames\":19,\"bytes\":399,\"basis\":\"sequence\",\"expected\":20,"
+                           "\"lost\":1,"))
+        << radio;
     EXPECT_TRUE(has(radio, "\"interval\":{\"frames\":10,\"bytes\":210,\"lost\":0,")) << radio;
     EXPECT_TRUE(has(status(), "\"intervals\":2,")) << status();
+}
+
+TEST_F(StatsTest, NoLogLineUnlessAskedFor) {
+    // A line a second by default filled a Pi's journal (issue 21, item 14).
+    create("interval: 1s");
+    host_.advance(seconds(5));
+    EXPECT_TRUE(host_.logs.empty()) << host_.logs.size() << " lines";
+    EXPECT_TRUE(has(status(), "\"intervals\":5,")) << status();
+}
+
+/// The samples a metrics scrape gives, by "name{label=value,...}" (labels in their order).
+std::map<std::string, double> scrape(const mavbond_plugin_descriptor* plugin, void* self) {
+    std::map<std::string, double> out;
+    plugin->metrics(self, [](void* ctx, const mavbond_metric_sample* m) {
+        std::string key = m->name;
+        key += "{";
+        for (uint32_t i = 0; i < m->label_count; i++)
+            key += std::string(i ? "," : "") + m->labels[i].name + "=" + m->labels[i].value;
+        key += "}";
+        (*static_cast<std::map<std::string, double>*>(ctx))[key] =
+            m->type == MAVBOND_METRIC_COUNTER ? static_cast<double>(m->count) : m->value;
+    }, &out);
+    return out;
+}
+
+TEST_F(StatsTest, AFarSideThatCountsMakesALinksLossExact) {
+    create("interval: 1s");
+    // Ten frames of a source with a gap: by sequence 1 lost of 11.
+    for (int i = 0; i < 12; i++) {
+        if (i != 5)
+            send("radio", static_cast<uint8_t>(i));
+    }
+    host_.advance(seconds(1));
+    EXPECT_TRUE(has(object("links", "radio"), "\"basis\":\"sequence\",\"expected\":12,\"lost\":1,"))
+        << object("links", "radio");
+    // The far side's markers: it wrote 200 frames on the link (the gap was its budget's
+    // choice), 198 arrived; it keeps the link in standby.
+    mavbond_link_counters& c = host_.counters[host_.link("radio").id];
+    c.account_flags = MAVBOND_ACCOUNT_EXACT | MAVBOND_ACCOUNT_PEER_STANDBY;
+    c.account_expected = 200;
+    c.account_received = 198;
+    std::string radio = object("links", "radio");
+    EXPECT_TRUE(has(radio, "\"basis\":\"markers\",\"expected\":200,\"lost\":2,\"loss_pct\":1.000,"
+                           "\"peer_standby\":true"))
+        << radio;
+    // The switch makes no interval of its own: the next one is the markers' alone.
+    host_.advance(seconds(1));
+    c.account_expected = 300;
+    c.account_received = 297;
+    host_.advance(seconds(1));
+    EXPECT_TRUE(has(object("links", "radio"), "\"interval\":{\"frames\":0,\"bytes\":0,\"lost\":1,"
+                                              "\"loss_pct\":1.000"))
+        << object("links", "radio");
+    auto m = scrape(plugin_, self_);
+    EXPECT_EQ(300, m["link_expected_frames{link=radio,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(297, m["link_received_frames{link=radio,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(0.01, m["link_loss_ratio{link=radio,bond=vehicle,basis=markers}"]);
+    // The sequence figures before the markers came stay, and grow no more.
+    send("radio", 20);
+    m = scrape(plugin_, self_);
+    EXPECT_EQ(12, m["link_expected_frames{link=radio,bond=vehicle,basis=sequence}"]);
+    EXPECT_EQ(11, m["link_received_frames{link=radio,bond=vehicle,basis=sequence}"]);
+    EXPECT_EQ(0u, m.count("link_loss_ratio{link=radio,bond=vehicle,basis=sequence}"));
+}
+
+TEST(StatsPeers, APeerThatMovesToANewPortStaysOneSeries) {
+    const mavbond_plugin_descriptor* plugin = mavbond_plugin_entry();
+    FakeHost host;
+    host.declare_endpoint("lte", "vehicle");  // a UDP server: its peers are the links
+    void* self = host.create(plugin, "log: false");
+    ASSERT_NE(self, nullptr) << host.last_error();
+    const mavbond_link& first = host.add_link("lte@192.0.2.7:40001", "vehicle");
+    plugin->on_link(self, &first, MAVBOND_LINK_ADDED);
+    host.counters[first.id] = mavbond_link_counters{};
+    host.counters[first.id].account_flags = MAVBOND_ACCOUNT_EXACT;
+    host.counters[first.id].account_expected = 100;
+    host.counters[first.id].account_received = 90;
+    for (uint8_t i = 0; i < 5; i++) {
+        auto raw = test_frame(i, 1, 1);
+        mavbond_frame f = host.frame(raw, first);
+        mavbond_frame_notes notes{};
+        notes.struct_size = sizeof notes;
+        host.ingress(f, notes, first);
+    }
+    plugin->on_link(self, &first, MAVBOND_LINK_REMOVED);  // the NAT moved the vehicle's port
+    const mavbond_link& second = host.add_link("lte@192.0.2.7:40002", "vehicle");
+    plugin->on_link(self, &second, MAVBOND_LINK_ADDED);
+    host.counters[second.id].account_flags = MAVBOND_ACCOUNT_EXACT;
+    host.counters[second.id].account_expected = 50;
+    host.counters[second.id].account_received = 50;
+    auto m = scrape(plugin, self);
+    EXPECT_EQ(150, m["link_expected_frames{link=lte,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(140, m["link_received_frames{link=lte,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(5, m["link_frames{link=lte,bond=vehicle}"]);
+    for (const auto& [key, v] : m)
+        EXPECT_EQ(std::string::npos, key.find("192.0.2.7")) << key << ": an address in a label";
+}
+
+// A signed peer's new port is taken at once and carries the old one's account on: the old
+// link's figures are then the new one's, counted once.
+TEST(StatsPeers, AnAccountCarriedOnByTheNewPeerIsCountedOnce) {
+    const mavbond_plugin_descriptor* plugin = mavbond_plugin_entry();
+    FakeHost host;
+    host.declare_endpoint("lte", "vehicle");
+    void* self = host.create(plugin, "log: false");
+    ASSERT_NE(self, nullptr) << host.last_error();
+    const mavbond_link& first = host.add_link("lte@192.0.2.7:40001", "vehicle");
+    plugin->on_link(self, &first, MAVBOND_LINK_ADDED);
+    host.counters[first.id] = mavbond_link_counters{};
+    host.counters[first.id].account_flags = MAVBOND_ACCOUNT_EXACT;
+    host.counters[first.id].account_expected = 100;
+    host.counters[first.id].account_received = 90;
+    EXPECT_EQ(100, scrape(plugin, self)["link_expected_frames{link=lte,bond=vehicle,basis=markers}"]);
+    const mavbond_link& second = host.add_link("lte@192.0.2.7:40002", "vehicle");
+    plugin->on_link(self, &second, MAVBOND_LINK_ADDED);
+    host.counters[first.id].account_flags |= MAVBOND_ACCOUNT_MOVED;
+    host.counters[second.id].account_flags = MAVBOND_ACCOUNT_EXACT;
+    host.counters[second.id].account_expected = 130;  // the old one's 100 and 30 since
+    host.counters[second.id].account_received = 118;
+    auto m = scrape(plugin, self);  // both present, as for a moment they are
+    EXPECT_EQ(130, m["link_expected_frames{link=lte,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(118, m["link_received_frames{link=lte,bond=vehicle,basis=markers}"]);
+    plugin->on_link(self, &first, MAVBOND_LINK_REMOVED);
+    m = scrape(plugin, self);
+    EXPECT_EQ(130, m["link_expected_frames{link=lte,bond=vehicle,basis=markers}"]);
+    EXPECT_EQ(118, m["link_received_frames{link=lte,bond=vehicle,basis=markers}"]);
 }
 
 TEST_F(StatsTest, LogCanBeTurnedOff) {

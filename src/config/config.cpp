@@ -3,11 +3,13 @@
 //
 // Inside this file a validation failure is thrown as ConfigError (private to this file) so the
 // many small checks stay one line each; parse_config() catches it and returns it as a value.
-// Nothing is thrown out of load_config()/parse_config().
+// Nothing is thrown out of load_config()/parse_config(). The value syntax (numbers, sizes,
+// durations, addresses) is values.h's; the YAML text and its syntax errors, yaml_text.h's.
 #include "config/config.h"
+#include "config/values.h"
+#include "config/yaml_text.h"
 
 #include <arpa/inet.h>
-#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -22,14 +24,15 @@
 #include <sstream>
 #include <utility>
 
+#include "config/listeners.h"
 #include "mavlink/frame.h"
 #include "mavlink/message_table.h"
+#include "mavlink/bond_signing.h"
 #include "mavlink/signing.h"
 
 namespace mavbond {
 namespace {
 
-constexpr uint32_t kMaxMessageId = 0xFFFFFF;           // MAVLink v2 msgid is 24 bits
 constexpr size_t kMinTxQueueBytes = kMaxFrameLen;      // one largest frame (280 bytes)
 constexpr size_t kMaxTxQueueBytes = 64u * 1024 * 1024; // a typo guard, far above any real need
 constexpr std::string_view kDurationExamples = "e.g. 250ms, 2s, 1.5s, 1m";
@@ -45,120 +48,6 @@ bool is_name_char(char c) {
 
 bool is_plugin_char(char c) {
     return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_';
-}
-
-bool all_digits(std::string_view s) {
-    if (s.empty())
-        return false;
-    for (char c : s) {
-        if (c < '0' || c > '9')
-            return false;
-    }
-    return true;
-}
-
-/// Parses a string of decimal digits; nullopt on anything else or overflow.
-std::optional<uint64_t> parse_u64(std::string_view s) {
-    if (!all_digits(s))
-        return std::nullopt;
-    uint64_t v = 0;
-    auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-    if (ec != std::errc() || ptr != s.data() + s.size())
-        return std::nullopt;
-    return v;
-}
-
-/// "16384", "16k", "16KiB", "64M", "64MiB", "1G", "1GiB" -> bytes; nullopt on anything else or
-/// overflow.
-std::optional<uint64_t> parse_byte_size(std::string_view text) {
-    uint64_t unit = 1;
-    for (auto [suffix, mult] : {std::pair<std::string_view, uint64_t>{"KiB", 1024},
-                                {"k", 1024},
-                                {"MiB", 1024 * 1024},
-                                {"M", 1024 * 1024},
-                                {"GiB", 1024 * 1024 * 1024},
-                                {"G", 1024 * 1024 * 1024}}) {
-        if (text.size() > suffix.size() && text.ends_with(suffix)) {
-            text.remove_suffix(suffix.size());
-            unit = mult;
-            break;
-        }
-    }
-    auto n = parse_u64(text);
-    if (!n || *n > std::numeric_limits<uint64_t>::max() / unit)
-        return std::nullopt;
-    return *n * unit;
-}
-
-constexpr uint64_t kMinTxRate = 100;                 // B/s: one largest frame in about 3 s
-constexpr uint64_t kMaxTxRate = 1000u * 1000 * 1000;  // a typo guard
-
-/// "5kB/s", "5760B/s", "64KiB/s", "1MB/s" (frame bytes a second) or "57600baud" (a serial line:
-/// 8N1 takes 10 bits a byte) -> bytes a second; nullopt on anything else.
-std::optional<uint64_t> parse_tx_rate_text(std::string_view text) {
-    if (text.size() > 4 && text.ends_with("baud")) {
-        auto baud = parse_u64(text.substr(0, text.size() - 4));
-        return baud ? std::optional<uint64_t>(*baud / 10) : std::nullopt;
-    }
-    if (!text.ends_with("B/s"))
-        return std::nullopt;
-    text.remove_suffix(3);
-    uint64_t unit = 1;
-    for (auto [prefix, mult] : {std::pair<std::string_view, uint64_t>{"Ki", 1024},
-                                {"k", 1000},
-                                {"Mi", 1024 * 1024},
-                                {"M", 1000 * 1000}}) {
-        if (text.size() > prefix.size() && text.ends_with(prefix)) {
-            text.remove_suffix(prefix.size());
-            unit = mult;
-            break;
-        }
-    }
-    auto n = parse_u64(text);
-    if (!n || *n > kMaxTxRate)
-        return std::nullopt;
-    return *n * unit;
-}
-
-/// "10Hz", "0.5Hz" -> the rate, within (0, 1000]; nullopt on anything else.
-std::optional<double> parse_hertz(std::string_view text) {
-    if (!text.ends_with("Hz"))
-        return std::nullopt;
-    text.remove_suffix(2);
-    double hz = 0;
-    auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), hz);
-    if (ec != std::errc() || ptr != text.data() + text.size() || text.empty() ||
-        !(text[0] >= '0' && text[0] <= '9') || !(hz > 0) || hz > 1000)
-        return std::nullopt;
-    return hz;
-}
-
-/// A message as the config names it: an id ("76") or a name ("COMMAND_LONG").
-std::optional<uint32_t> message_id(const std::string& text) {
-    if (!text.empty() && ((text[0] >= '0' && text[0] <= '9') || text[0] == '-')) {
-        auto id = parse_u64(text);
-        if (!id || *id > kMaxMessageId)
-            return std::nullopt;
-        return static_cast<uint32_t>(*id);
-    }
-    return find_message_id(text);
-}
-
-/// "COMMAND_LONG (76)", or "76" for an id the message table does not know.
-std::string message_label(uint32_t id) {
-    const MessageInfo* info = find_message(id);
-    return info ? std::string(info->name) + " (" + std::to_string(id) + ")" : std::to_string(id);
-}
-
-/// "10%" -> 0.10: a percentage from 0 to 100, the % required.
-std::optional<double> parse_percent(const std::string& text) {
-    if (text.size() < 2 || text.back() != '%')
-        return std::nullopt;
-    char* end = nullptr;
-    double v = strtod(text.c_str(), &end);
-    if (end != text.c_str() + text.size() - 1 || !std::isfinite(v) || v < 0 || v > 100)
-        return std::nullopt;
-    return v / 100.0;
 }
 
 /// What a link with a budget spends it on first, when the file has no `tx_classes:`
@@ -195,17 +84,6 @@ TxClassesConfig default_tx_classes() {
     return classes;
 }
 
-/// 65536 -> "64KiB", 1073741824 -> "1GiB": the largest unit that divides it.
-std::string format_size(uint64_t n) {
-    for (auto [unit, mult] : {std::pair<const char*, uint64_t>{"GiB", 1u << 30},
-                              {"MiB", 1u << 20},
-                              {"KiB", 1u << 10}}) {
-        if (n >= mult && n % mult == 0)
-            return std::to_string(n / mult) + unit;
-    }
-    return std::to_string(n);
-}
-
 
 const char* kind_name(const YAML::Node& node) {
     switch (node.Type()) {
@@ -216,6 +94,42 @@ const char* kind_name(const YAML::Node& node) {
     case YAML::NodeType::Undefined: return "nothing";
     }
     return "?";
+}
+
+/// Edits (insert, delete, replace, swap two neighbours) that make `a` into `b`.
+size_t edit_distance(std::string_view a, std::string_view b) {
+    std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));
+    for (size_t i = 0; i <= a.size(); i++)
+        d[i][0] = i;
+    for (size_t j = 0; j <= b.size(); j++)
+        d[0][j] = j;
+    for (size_t i = 1; i <= a.size(); i++) {
+        for (size_t j = 1; j <= b.size(); j++) {
+            d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1,
+                                d[i - 1][j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+            if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1])
+                d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+        }
+    }
+    return d[a.size()][b.size()];
+}
+
+/// "did you mean 'baud'? a uart endpoint takes: baud, bond, ...": the keys `taker` takes,
+/// and first the one `key` is most likely a typo of (at most 2 edits, fewer than half of it).
+std::string known_keys_hint(std::string_view key, const std::set<std::string_view>& keys,
+                            const std::string& taker) {
+    std::string_view nearest;
+    size_t best = std::min<size_t>(3, (key.size() + 1) / 2);
+    std::string list;
+    for (std::string_view k : keys) {
+        list += (list.empty() ? "" : ", ") + std::string(k);
+        if (size_t d = edit_distance(key, k); d < best) {
+            best = d;
+            nearest = k;
+        }
+    }
+    return (nearest.empty() ? "" : "did you mean '" + std::string(nearest) + "'? ") + taker +
+           " takes: " + list;
 }
 
 /// One key/value pair of a YAML map, in document order.
@@ -267,10 +181,7 @@ private:
     };
 
     [[noreturn]] void fail(const YAML::Mark& mark, const std::string& message) const {
-        int line = mark.is_null() ? 1 : mark.line + 1;
-        int column = mark.is_null() ? 1 : mark.column + 1;
-        throw ConfigError{name_ + ":" + std::to_string(line) + ":" + std::to_string(column) +
-                          ": " + message};
+        throw ConfigError{format_at(name_, mark, message)};
     }
 
     SourceMark source_mark(const YAML::Mark& mark) const {
@@ -284,8 +195,13 @@ private:
         return e.value.IsNull() || e.value.Mark().is_null() ? e.key.Mark() : e.value.Mark();
     }
 
+    /// Keys are plain words, each once, and (with `allowed`) known: an unknown one is named
+    /// with the keys `listed` (by default the allowed ones), those `taker` (by default "it")
+    /// takes, and the nearest of them when it looks like a typo of it.
     void check_keys(const MapView& view, const std::string& ctx,
-                    const std::set<std::string_view>* allowed) const;
+                    const std::set<std::string_view>* allowed,
+                    const std::set<std::string_view>* listed = nullptr,
+                    const std::string& taker = "it") const;
     /// A top-level section's map (`identity:`, `link_events:`, ...), its keys checked.
     MapView section_view(const Entry& section, const std::string& ctx,
                          const std::set<std::string_view>& keys) const;
@@ -304,6 +220,10 @@ private:
 
     void parse_endpoint(const YAML::Node& node, size_t index);
     /// The endpoint type (and mode) of an entry, by its `type:` and `mode:`.
+    /// The endpoint's type and mode, if they name one (nullptr: parse_endpoint_type says why).
+    const EndpointSchema* endpoint_type_named(const MapView& view) const;
+    /// Every key an endpoint of this type and mode takes.
+    std::set<std::string_view> endpoint_keys(const EndpointSchema& type) const;
     const EndpointSchema& parse_endpoint_type(const MapView& view, const YAML::Node& node,
                                               const std::string& ctx) const;
     /// One option of an endpoint's type, as its kind reads it.
@@ -312,6 +232,14 @@ private:
                                 const std::string& ctx, bool given) const;
     OptionValue parse_address(const Entry& e, const std::string& ctx) const;
     void parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const;
+    /// A signing block's `key_file`: its path, resolved from the config file's directory, and
+    /// the key it holds.
+    std::pair<std::string, std::array<uint8_t, 32>> key_file(const MapView& view,
+                                                              const YAML::Node& map,
+                                                              const std::string& where) const;
+    void parse_bond_signing(const Entry& e, const std::string& ctx, BondConfig& bond);
+    /// Checks the bonds' signed links and gives each its bond's key (SigningConfig::by_bond).
+    void sign_bond_links();
     /// After parse_tx_rate: `radio_status` (a UART without `tx_rate` takes its baud).
     void parse_radio_status(const Entry& e, const std::string& ctx, const EndpointSchema& type,
                             TxBudgetConfig& budget) const;
@@ -334,17 +262,27 @@ private:
     std::map<std::string, YAML::Mark> bond_names_;
     std::vector<BondRef> bond_refs_;
     std::vector<BondRef> radio_refs_;  // endpoints with `radio_status`: each must be in a bond
+    std::vector<BondRef> listener_refs_;  // servers, at their address: one address each
     struct StandbyRef {
         std::string bond;
         std::string key;
         YAML::Mark mark;
     };
     std::vector<StandbyRef> standby_refs_;  // standby keys given: their bond needs a metered member
+    std::vector<BondRef> signing_refs_;  // endpoints with their own `signing:`
+    struct SignedLinkRef {
+        size_t bond;       // index into config_.bonds
+        std::string name;
+        YAML::Mark mark;   // the item in `links`
+    };
+    std::vector<SignedLinkRef> signed_link_refs_;
+    std::map<std::string, YAML::Mark> bond_signing_marks_;  // bonds with `signing:`, the key's mark
     std::vector<ScopeRef> scope_refs_;
 };
 
 void Parser::check_keys(const MapView& view, const std::string& ctx,
-                        const std::set<std::string_view>* allowed) const {
+                        const std::set<std::string_view>* allowed,
+                        const std::set<std::string_view>* listed, const std::string& taker) const {
     std::set<std::string_view> seen;
     for (const auto& e : view.entries) {
         if (!e.key.IsScalar())
@@ -352,7 +290,9 @@ void Parser::check_keys(const MapView& view, const std::string& ctx,
         if (!seen.insert(e.name).second)
             fail(e.key.Mark(), ctx + "duplicate key '" + e.name + "'");
         if (allowed && !allowed->count(e.name))
-            fail(e.key.Mark(), ctx + "unknown key '" + e.name + "'");
+            fail(e.key.Mark(), ctx + "unknown key '" + e.name + "' (" +
+                                   known_keys_hint(e.name, listed ? *listed : *allowed, taker) +
+                                   ")");
     }
 }
 
@@ -584,7 +524,21 @@ const EndpointSchema& Parser::parse_endpoint_type(const MapView& view, const YAM
                                 words(mode_words, ", ") + ")");
 }
 
-void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
+const EndpointSchema* Parser::endpoint_type_named(const MapView& view) const {
+    const Entry* type = view.find("type");
+    const Entry* mode = view.find("mode");
+    if (!type || !type->value.IsScalar())
+        return nullptr;
+    for (const EndpointSchema* t : types_) {
+        if (type->value.Scalar() != t->type)
+            continue;
+        if (!t->mode || (mode && mode->value.IsScalar() && mode->value.Scalar() == t->mode))
+            return t;
+    }
+    return nullptr;
+}
+
+std::set<std::string_view> Parser::endpoint_keys(const EndpointSchema& type) const {
     // The keys every endpoint takes, and those only an endpoint frames come from takes; the
     // rest are its type's (its table).
     static const std::set<std::string_view> kCommonKeys = {"name", "type", "tx_queue",
@@ -593,6 +547,17 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     static const std::set<std::string_view> kReceiverKeys = {
         "allow_in", "block_in", "bond", "signing", "tx_rate", "radio_status", "cost",
         "standby_carries"};
+    std::set<std::string_view> keys(kCommonKeys.begin(), kCommonKeys.end());
+    if (type.receives)
+        keys.insert(kReceiverKeys.begin(), kReceiverKeys.end());
+    if (type.mode)
+        keys.insert("mode");
+    for (const EndpointOption& o : type.options)
+        keys.insert(o.key);
+    return keys;
+}
+
+void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     std::string ctx = "endpoint #" + std::to_string(index) + ": ";
     if (!node.IsMap())
         fail(node.Mark(), ctx + "must be a map of keys, not " + kind_name(node));
@@ -609,16 +574,17 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     }
     ctx = "endpoint '" + ep.name + "': ";
 
-    // Every key some endpoint takes; any other is unknown.
-    std::set<std::string_view> known(kCommonKeys.begin(), kCommonKeys.end());
-    known.insert(kReceiverKeys.begin(), kReceiverKeys.end());
-    for (const EndpointSchema* t : types_) {
-        if (t->mode)
-            known.insert("mode");
-        for (const EndpointOption& o : t->options)
-            known.insert(o.key);
+    // Every key some endpoint takes; any other is unknown, and named with the keys its type
+    // takes when the type is clear already (else with every endpoint key).
+    std::set<std::string_view> known;
+    for (const EndpointSchema* t : types_)
+        known.merge(endpoint_keys(*t));
+    if (const EndpointSchema* t = endpoint_type_named(view)) {
+        const std::set<std::string_view> own = endpoint_keys(*t);
+        check_keys(view, ctx, &known, &own, "a " + t->title() + " endpoint");
+    } else {
+        check_keys(view, ctx, &known, nullptr, "an endpoint");
     }
-    check_keys(view, ctx, &known);
 
     if (auto [it, inserted] = endpoint_names_.emplace(ep.name, name_entry.value.Mark());
         !inserted) {
@@ -630,17 +596,13 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
     const EndpointSchema& type = parse_endpoint_type(view, node, ctx);
     ep.schema = &type;
     // The keys this type and mode takes; those its type takes in another mode are named so.
-    std::set<std::string_view> own(kCommonKeys.begin(), kCommonKeys.end());
-    if (type.receives)
-        own.insert(kReceiverKeys.begin(), kReceiverKeys.end());
+    const std::set<std::string_view> own = endpoint_keys(type);
     std::set<std::string_view> other_modes;
     for (const EndpointSchema* t : types_) {
-        if (std::string_view(t->type) != type.type)
-            continue;
-        for (const EndpointOption& o : t->options)
-            (t == &type ? own : other_modes).insert(o.key);
-        if (t->mode)
-            own.insert("mode");
+        if (std::string_view(t->type) == type.type && t != &type) {
+            for (const EndpointOption& o : t->options)
+                other_modes.insert(o.key);
+        }
     }
     for (const auto& e : view.entries) {
         if (own.count(e.name))
@@ -660,6 +622,8 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
                                   (option.kind == OptionKind::Address ? " (host:port)" : ""));
         }
     }
+    if (type.listens)
+        listener_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*view.find("address"))});
     if (type.check) {
         if (auto broken = type.check(ep.options)) {
             const Entry* e = view.find(broken->first);
@@ -694,8 +658,10 @@ void Parser::parse_endpoint(const YAML::Node& node, size_t index) {
             fail(value_mark(*e), ctx + "'bond' must not be empty");
         bond_refs_.push_back(BondRef{config_.endpoints.size(), value_mark(*e)});
     }
-    if (const Entry* e = view.find("signing"))
+    if (const Entry* e = view.find("signing")) {
         parse_signing(*e, ctx, ep.signing);
+        signing_refs_.push_back(BondRef{config_.endpoints.size(), e->key.Mark()});
+    }
     if (const Entry* e = view.find("tx_rate"))
         parse_tx_rate(*e, ctx, type, ep.tx_budget);
     if (const Entry* e = view.find("radio_status")) {
@@ -796,6 +762,20 @@ OptionValue Parser::parse_address(const Entry& e, const std::string& ctx) const 
     return v;
 }
 
+std::pair<std::string, std::array<uint8_t, 32>> Parser::key_file(const MapView& view,
+                                                                  const YAML::Node& map,
+                                                                  const std::string& where) const {
+    std::string file = required_scalar(view, map, "key_file", where);
+    // A relative path is read from the config file's directory, wherever the daemon runs.
+    auto slash = name_.rfind('/');
+    if (file[0] != '/' && slash != std::string::npos)
+        file = name_.substr(0, slash + 1) + file;
+    auto key = load_signing_key(file);
+    if (!key)
+        fail(value_mark(*view.find("key_file")), where + key.error().message);
+    return {file, key.value()};
+}
+
 void Parser::parse_signing(const Entry& e, const std::string& ctx, SigningConfig& signing) const {
     std::string where = ctx + "'signing': ";
     if (!e.value.IsMap())
@@ -804,18 +784,34 @@ void Parser::parse_signing(const Entry& e, const std::string& ctx, SigningConfig
     static const std::set<std::string_view> kKeys = {"key_file", "require"};
     check_keys(view, where, &kKeys);
     signing.enabled = true;
-    std::string file = required_scalar(view, e.value, "key_file", where);
-    // A relative path is read from the config file's directory, wherever the daemon runs.
-    auto slash = name_.rfind('/');
-    if (file[0] != '/' && slash != std::string::npos)
-        file = name_.substr(0, slash + 1) + file;
-    signing.key_file = file;
-    auto key = load_signing_key(file);
-    if (!key)
-        fail(value_mark(*view.find("key_file")), where + key.error().message);
-    signing.key = key.value();
+    std::tie(signing.key_file, signing.key) = key_file(view, e.value, where);
     if (const Entry* r = view.find("require"))
         signing.require = boolean(*r, where);
+}
+
+void Parser::parse_bond_signing(const Entry& e, const std::string& ctx, BondConfig& bond) {
+    std::string where = ctx + "'signing': ";
+    if (!e.value.IsMap())
+        fail(value_mark(e), where + "must be a map (key_file, links), not " + kind_name(e.value));
+    MapView view = make_view(e.value);
+    static const std::set<std::string_view> kKeys = {"key_file", "links"};
+    check_keys(view, where, &kKeys);
+    bond.signing.enabled = true;
+    std::tie(bond.signing.key_file, bond.signing.key) = key_file(view, e.value, where);
+    bond_signing_marks_.emplace(bond.name, e.key.Mark());
+    if (const Entry* links = view.find("links")) {
+        auto names = name_list(*links, where);
+        if (names.empty())
+            fail(value_mark(*links), where + "'links' must name at least one member (leave it "
+                                             "out to sign every member)");
+        for (const auto& [name, mark] : names) {
+            for (const auto& ref : signed_link_refs_) {
+                if (ref.bond == config_.bonds.size() && ref.name == name)
+                    fail(mark, where + "'links': '" + name + "' is listed twice");
+            }
+            signed_link_refs_.push_back(SignedLinkRef{config_.bonds.size(), name, mark});
+        }
+    }
 }
 
 void Parser::parse_bond(const YAML::Node& node, size_t index) {
@@ -834,7 +830,8 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
     }
     ctx = "bond '" + bond.name + "': ";
     static const std::set<std::string_view> kKeys = {
-        "name", "tx", "renumber", "failover_loss", "failback_loss", "failback_after", "resend"};
+        "name", "tx", "renumber", "failover_loss", "failback_loss", "failback_after", "resend",
+        "signing"};
     check_keys(view, ctx, &kKeys);
     if (auto [it, inserted] = bond_names_.emplace(bond.name, name_entry.value.Mark());
         !inserted) {
@@ -846,6 +843,7 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
         bond.tx = choice<BondConfig::Tx>(*e, ctx,
                                          {{"broadcast", BondConfig::Tx::Broadcast},
                                           {"active", BondConfig::Tx::Active}});
+        bond.tx_mark = source_mark(value_mark(*e));
     }
     if (const Entry* e = view.find("renumber")) {
         bond.renumber = boolean(*e, ctx);
@@ -869,6 +867,8 @@ void Parser::parse_bond(const YAML::Node& node, size_t index) {
                                      std::to_string(static_cast<int>(bond.failover_loss * 100 + 0.5)) +
                                      "%): the gap between them keeps standby from flapping");
     }
+    if (const Entry* e = view.find("signing"))
+        parse_bond_signing(*e, ctx, bond);
     for (const char* key : {"failover_loss", "failback_loss", "failback_after", "resend"}) {
         if (const Entry* e = view.find(key))
             standby_refs_.push_back(StandbyRef{bond.name, key, e->key.Mark()});
@@ -1004,8 +1004,10 @@ void Parser::parse_identity(const Entry& section) {
     IdentityConfig& id = config_.identity;
     if (const Entry* e = view.find("sysid"))
         id.sysid = mavlink_id(*e, ctx);
-    if (const Entry* e = view.find("compid"))
+    if (const Entry* e = view.find("compid")) {
         id.compid = mavlink_id(*e, ctx);
+        id.compid_given = true;
+    }
     if (const Entry* e = view.find("heartbeat"))
         id.heartbeat = duration(*e, ctx, true);
 }
@@ -1128,6 +1130,26 @@ void Parser::cross_check() {
             fail(ref.mark, "endpoint '" + ep.name + "': bond '" + ep.bond +
                                "' is not declared under 'bonds:'");
     }
+    for (size_t j = 0; j < listener_refs_.size(); j++) {
+        const auto& b = config_.endpoints[listener_refs_[j].endpoint];
+        for (size_t i = 0; i < j; i++) {
+            const auto& a = config_.endpoints[listener_refs_[i].endpoint];
+            if (std::string_view(a.schema->type) != b.schema->type ||
+                !listen_addresses_overlap(a.options.text("address"), a.options.port("address"),
+                                          b.options.text("address"), b.options.port("address")))
+                continue;
+            auto shown = [](const EndpointConfig& e) {
+                const std::string& host = e.options.text("address");
+                return (host.find(':') != std::string::npos ? "[" + host + "]" : host) + ":" +
+                       std::to_string(e.options.port("address"));
+            };
+            fail(listener_refs_[j].mark,
+                 "endpoint '" + b.name + "': " + b.schema->type + " address " + shown(b) +
+                     " is taken by endpoint '" + a.name + "' (" + shown(a) + ", declared at " +
+                     a.mark.file + ":" + std::to_string(a.mark.line) + ":" +
+                     std::to_string(a.mark.column) + "): two servers cannot listen on one address");
+        }
+    }
     for (const auto& ref : radio_refs_) {
         const auto& ep = config_.endpoints[ref.endpoint];
         if (ep.bond.empty())
@@ -1160,6 +1182,7 @@ void Parser::cross_check() {
                  "bond '" + bond.name + "': every member is 'cost: metered'; standby needs a "
                  "free member to stand by for");
     }
+    sign_bond_links();
     for (const auto& ref : scope_refs_) {
         bool known = ref.key == "bonds" ? bond_names_.count(ref.name) > 0
                                         : endpoint_names_.count(ref.name) > 0;
@@ -1170,253 +1193,64 @@ void Parser::cross_check() {
     }
 }
 
-std::string format_at(const std::string& name, const YAML::Mark& mark, const std::string& what) {
-    int line = mark.is_null() ? 1 : mark.line + 1;
-    int column = mark.is_null() ? 1 : mark.column + 1;
-    return name + ":" + std::to_string(line) + ":" + std::to_string(column) + ": " + what;
+void Parser::sign_bond_links() {
+    for (const auto& ref : signed_link_refs_) {
+        const BondConfig& bond = config_.bonds[ref.bond];
+        auto ep = std::find_if(config_.endpoints.begin(), config_.endpoints.end(),
+                               [&](const EndpointConfig& e) { return e.name == ref.name; });
+        if (ep == config_.endpoints.end() || ep->bond != bond.name)
+            fail(ref.mark, "bond '" + bond.name + "': 'signing': 'links': '" + ref.name +
+                               "' is not a member of the bond (a member has 'bond: " +
+                               bond.name + "')");
+    }
+    for (size_t b = 0; b < config_.bonds.size(); b++) {
+        BondConfig& bond = config_.bonds[b];
+        if (!bond.signing.enabled)
+            continue;
+        // The links in config order: those `links` names, or every member.
+        auto listed = [&](const std::string* name) {
+            return std::any_of(signed_link_refs_.begin(), signed_link_refs_.end(),
+                               [&](const SignedLinkRef& r) {
+                                   return r.bond == b && (!name || r.name == *name);
+                               });
+        };
+        const bool all = !listed(nullptr);
+        for (const EndpointConfig& ep : config_.endpoints) {
+            if (ep.bond == bond.name && (all || listed(&ep.name)))
+                bond.signing.links.push_back(ep.name);
+        }
+        if (bond.signing.links.size() > BondSigning::kMaxMembers)
+            fail(bond_signing_marks_.at(bond.name),
+                 "bond '" + bond.name + "': 'signing': at most " +
+                     std::to_string(BondSigning::kMaxMembers) + " signed links (it has " +
+                     std::to_string(bond.signing.links.size()) + ")");
+    }
+    // An endpoint in a bond is signed by its bond or not at all: its own `signing:` would
+    // check frames the bond signs, and let unsigned ones steer the bond with `require: false`.
+    for (const auto& ref : signing_refs_) {
+        const EndpointConfig& ep = config_.endpoints[ref.endpoint];
+        if (!ep.bond.empty())
+            fail(ref.mark, "endpoint '" + ep.name + "': 'signing' on a bond member: sign the "
+                           "bond instead (bonds: - {name: " + ep.bond +
+                           ", signing: {key_file: ...}}), which signs what it sends on its links "
+                           "and verifies what they bring");
+    }
+    for (const BondConfig& bond : config_.bonds) {
+        for (const std::string& link : bond.signing.links) {
+            for (EndpointConfig& ep : config_.endpoints) {
+                if (ep.name != link)
+                    continue;
+                ep.signing.enabled = true;
+                ep.signing.require = true;
+                ep.signing.by_bond = true;
+                ep.signing.key_file = bond.signing.key_file;
+                ep.signing.key = bond.signing.key;
+            }
+        }
+    }
 }
 
 }  // namespace
-
-/// A DNS name as a resolver takes it: dot-separated labels of letters, digits and hyphens
-/// (not at a label's ends), each 1 to 63 characters, 253 in all; a final dot allowed.
-static bool is_host_name(std::string_view name) {
-    if (name.ends_with('.'))
-        name.remove_suffix(1);
-    if (name.empty() || name.size() > 253)
-        return false;
-    size_t label = 0;
-    for (size_t i = 0; i <= name.size(); i++) {
-        if (i == name.size() || name[i] == '.') {
-            if (label == 0 || label > 63 || name[i - 1] == '-' || name[i - label] == '-')
-                return false;
-            label = 0;
-        } else if (std::isalnum(static_cast<unsigned char>(name[i])) || name[i] == '-') {
-            label++;
-        } else {
-            return false;
-        }
-    }
-    return true;
-}
-
-HostPort parse_host_port(std::string_view text) {
-    HostPort out;
-    std::string_view host, port_text;
-    if (text.starts_with('[')) {
-        auto close = text.find(']');
-        if (close == std::string_view::npos) {
-            out.error = "'" + std::string(text) + "' has no ']' after the IPv6 address";
-            return out;
-        }
-        host = text.substr(1, close - 1);
-        std::string_view rest = text.substr(close + 1);
-        if (!rest.starts_with(':')) {
-            out.error = "'" + std::string(text) + "' needs a port after the brackets ([::1]:14550)";
-            return out;
-        }
-        port_text = rest.substr(1);
-        in6_addr v6{};
-        if (inet_pton(AF_INET6, std::string(host).c_str(), &v6) != 1) {
-            out.error = "'[" + std::string(host) + "]' is not an IPv6 address";
-            return out;
-        }
-    } else {
-        auto colon = text.rfind(':');
-        if (colon == std::string_view::npos) {
-            out.error = "'" + std::string(text) +
-                        "' needs host:port (e.g. 0.0.0.0:14550, [::1]:14550, "
-                        "lte.example.net:14550)";
-            return out;
-        }
-        host = text.substr(0, colon);
-        port_text = text.substr(colon + 1);
-        in_addr v4{};
-        std::string h(host);
-        if (host.find(':') != std::string_view::npos) {
-            out.error = "host '" + h + "': an IPv6 address is written in brackets ([" + h +
-                        "]:port)";
-            return out;
-        }
-        bool looks_numeric = !h.empty() && h.find_first_not_of("0123456789.") == std::string::npos;
-        if (looks_numeric ? inet_pton(AF_INET, h.c_str(), &v4) != 1 : !is_host_name(h)) {
-            out.error = "host '" + h + "' is not an IPv4 address (a.b.c.d), an IPv6 address in " +
-                        "brackets or a host name";
-            return out;
-        }
-    }
-    auto port = parse_u64(port_text);
-    if (!port || *port < 1 || *port > 65535) {
-        out.error = "port '" + std::string(port_text) + "' is not in 1..65535";
-        return out;
-    }
-    out.host = host == "localhost" ? "127.0.0.1" : std::string(host);
-    out.port = static_cast<uint16_t>(*port);
-    return out;
-}
-
-std::optional<Duration> parse_duration(std::string_view text) {
-    size_t i = 0;
-    uint64_t whole = 0;
-    size_t whole_digits = 0;
-    while (i < text.size() && text[i] >= '0' && text[i] <= '9') {
-        if (whole > (std::numeric_limits<uint64_t>::max() - 9) / 10)
-            return std::nullopt;
-        whole = whole * 10 + static_cast<uint64_t>(text[i] - '0');
-        ++i;
-        ++whole_digits;
-    }
-    if (whole_digits == 0)
-        return std::nullopt;
-    // Up to 9 fraction digits, kept as an exact decimal: 1.5s is 1500000000ns.
-    uint64_t frac = 0;
-    uint64_t frac_scale = 1;
-    if (i < text.size() && text[i] == '.') {
-        ++i;
-        size_t frac_digits = 0;
-        while (i < text.size() && text[i] >= '0' && text[i] <= '9') {
-            if (frac_digits == 9)
-                return std::nullopt;
-            frac = frac * 10 + static_cast<uint64_t>(text[i] - '0');
-            frac_scale *= 10;
-            ++i;
-            ++frac_digits;
-        }
-        if (frac_digits == 0)
-            return std::nullopt;
-    }
-    std::string_view unit = text.substr(i);
-    uint64_t ns_per_unit = 0;
-    if (unit == "ns")
-        ns_per_unit = 1;
-    else if (unit == "us")
-        ns_per_unit = 1'000;
-    else if (unit == "ms")
-        ns_per_unit = 1'000'000;
-    else if (unit == "s")
-        ns_per_unit = 1'000'000'000;
-    else if (unit == "m")
-        ns_per_unit = 60'000'000'000;
-    else
-        return std::nullopt;
-    constexpr auto kMax = static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
-    if (whole > kMax / ns_per_unit)
-        return std::nullopt;
-    uint64_t ns = whole * ns_per_unit;
-    // frac < frac_scale <= 1e9, and frac_scale divides 1e9: both branches stay in 64 bits.
-    uint64_t extra = 0;
-    if (ns_per_unit >= 1'000'000'000) {
-        extra = frac * (1'000'000'000 / frac_scale) * (ns_per_unit / 1'000'000'000);
-    } else {
-        if (frac * ns_per_unit % frac_scale != 0)
-            return std::nullopt;  // finer than a nanosecond
-        extra = frac * ns_per_unit / frac_scale;
-    }
-    if (ns > kMax - extra)
-        return std::nullopt;
-    return Duration(static_cast<int64_t>(ns + extra));
-}
-
-namespace {
-
-/// YAML allows no control character but tab and line breaks (its c-printable set), and
-/// yaml-cpp misreads them: a NUL ends a scalar early, and the error then points past the end
-/// of the line and carries the NUL into the message (found by tests/fuzz/fuzz_config). So the
-/// first one is refused here, where it is. Lines and columns count bytes, as yaml-cpp's do.
-std::optional<std::string> control_character_error(const std::string& text,
-                                                   const std::string& name) {
-    int line = 1;
-    size_t line_start = 0;
-    for (size_t i = 0; i < text.size(); ++i) {
-        const auto c = static_cast<unsigned char>(text[i]);
-        if (c == '\n') {
-            ++line;
-            line_start = i + 1;
-        } else if ((c < 0x20 && c != '\t' && c != '\r') || c == 0x7F) {
-            char what[64];
-            std::snprintf(what, sizeof what, "control character 0x%02X is not allowed in YAML", c);
-            return name + ":" + std::to_string(line) + ":" + std::to_string(i - line_start + 1) +
-                   ": " + what;
-        }
-    }
-    return std::nullopt;
-}
-
-/// Where the documents of a YAML stream start, and their root nodes. It replaces LoadAll(),
-/// which loops forever, allocating, on a token no document can take, such as a stray ','
-/// (yaml-cpp issue #1040; found by tests/fuzz/fuzz_config): the parser hands out empty
-/// documents that all start at that token.
-class DocumentMarks : public YAML::EventHandler {
-public:
-    struct Document {
-        YAML::Mark start;
-        YAML::Mark root = YAML::Mark::null_mark();
-    };
-    std::vector<Document> documents;
-
-    void OnDocumentStart(const YAML::Mark& mark) override { documents.push_back({mark}); }
-    void OnDocumentEnd() override {}
-    void OnNull(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
-    void OnAlias(const YAML::Mark& mark, YAML::anchor_t) override { node(mark); }
-    void OnScalar(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
-                  const std::string&) override {
-        node(mark);
-    }
-    void OnSequenceStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
-                         YAML::EmitterStyle::value) override {
-        node(mark);
-    }
-    void OnSequenceEnd() override {}
-    void OnMapStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
-                    YAML::EmitterStyle::value) override {
-        node(mark);
-    }
-    void OnMapEnd() override {}
-
-private:
-    void node(const YAML::Mark& mark) {
-        if (!documents.empty() && documents.back().root.is_null())
-            documents.back().root = mark;
-    }
-};
-
-/// The error for a text that is not exactly one YAML document, if it is not.
-std::optional<std::string> document_error(const std::string& text, const std::string& name) {
-    std::istringstream in(text);
-    YAML::Parser parser(in);
-    DocumentMarks marks;
-    // Three are enough: a second document, or one starting where the one before did.
-    for (int i = 0; i < 3 && parser.HandleNextDocument(marks); ++i) {
-    }
-    const auto& docs = marks.documents;
-    for (size_t k = 1; k < docs.size(); ++k) {
-        if (docs[k].start.pos == docs[k - 1].start.pos) {
-            const auto pos = static_cast<size_t>(docs[k - 1].start.pos);
-            const char c = pos < text.size() ? text[pos] : ' ';
-            return format_at(name, docs[k - 1].start,
-                             c > ' ' && c < 0x7F ? std::string("unexpected '") + c + "'"
-                                                 : std::string("unexpected text"));
-        }
-    }
-    if (docs.size() > 1) {
-        return format_at(name, docs[1].root.is_null() ? docs[1].start : docs[1].root,
-                         "only one YAML document is allowed (found a second one after '---')");
-    }
-    return std::nullopt;
-}
-
-}  // namespace
-
-std::string format_duration(Duration d) {
-    auto ns = d.count();
-    if (ns % 1'000'000'000 == 0)
-        return std::to_string(ns / 1'000'000'000) + "s";
-    if (ns % 1'000'000 == 0)
-        return std::to_string(ns / 1'000'000) + "ms";
-    if (ns % 1'000 == 0)
-        return std::to_string(ns / 1'000) + "us";
-    return std::to_string(ns) + "ns";
-}
 
 const EndpointOption* EndpointSchema::find(std::string_view key) const {
     for (const EndpointOption& o : options) {
@@ -1432,32 +1266,6 @@ const OptionValue& EndpointOptions::at(std::string_view key) const {
     return it == values_.end() ? kAbsent : it->second;
 }
 
-namespace {
-
-/// YAML reads `address: [::1]:14550` as a list and then fails on what follows: when the line
-/// of a YAML error holds a bracketed address and port, say how to write one.
-std::string unquoted_ipv6_hint(const std::string& text, const YAML::Mark& mark) {
-    if (mark.line < 0)
-        return "";
-    size_t begin = 0;
-    for (int line = 0; line < mark.line && begin != std::string::npos; line++) {
-        begin = text.find('\n', begin);
-        if (begin != std::string::npos)
-            begin++;
-    }
-    if (begin == std::string::npos)
-        return "";
-    std::string_view line(text.c_str() + begin, text.find('\n', begin) == std::string::npos
-                                                     ? text.size() - begin
-                                                     : text.find('\n', begin) - begin);
-    auto open = line.find('[');
-    if (open == std::string_view::npos || line.find("]:", open) == std::string_view::npos)
-        return "";
-    return " (an IPv6 address in brackets is quoted in YAML: address: \"[::1]:14550\")";
-}
-
-}  // namespace
-
 Result<Config> parse_config(const std::string& text, const std::string& name,
                             EndpointSchemas types) {
     if (auto error = control_character_error(text, name))
@@ -1470,7 +1278,7 @@ Result<Config> parse_config(const std::string& text, const std::string& name,
     } catch (const ConfigError& e) {
         return make_error(e.message);
     } catch (const YAML::Exception& e) {
-        return make_error(format_at(name, e.mark, e.msg + unquoted_ipv6_hint(text, e.mark)));
+        return make_error(yaml_syntax_error(text, name, e.mark, e.msg));
     } catch (const std::exception& e) {
         return make_error(format_at(name, YAML::Mark::null_mark(), e.what()));
     }
@@ -1543,7 +1351,7 @@ EndpointConfig unmarked(EndpointConfig c) {
     return c;
 }
 BondConfig unmarked(BondConfig c) {
-    c.mark = c.renumber_mark = {};
+    c.mark = c.renumber_mark = c.tx_mark = {};
     return c;
 }
 FilterConfig unmarked(FilterConfig c) {

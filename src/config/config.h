@@ -2,6 +2,7 @@
 // file:line:column and the key; the daemon exits with 78 (EX_CONFIG) on any of them.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <optional>
@@ -32,17 +33,35 @@ struct SourceMark {
 struct MessageFilterConfig {
     std::vector<uint32_t> allow;
     std::vector<uint32_t> block;
+    bool passes(uint32_t msgid) const {
+        auto has = [msgid](const std::vector<uint32_t>& list) {
+            return std::find(list.begin(), list.end(), msgid) != list.end();
+        };
+        return (allow.empty() || has(allow)) && !has(block);
+    }
     bool operator==(const MessageFilterConfig&) const = default;
 };
 
 /// An endpoint's `signing:` block: incoming frames must carry a MAVLink 2 signature that
-/// verifies against the key.
+/// verifies against the key. Or, derived from its bond's (`by_bond`): the bond signs what it
+/// sends on this link and verifies what comes in with the bond's key (mavlink/bond_signing.h).
 struct SigningConfig {
-    bool enabled = false;              // a `signing:` block is present
+    bool enabled = false;              // a `signing:` block is present, or the bond signs it
     bool require = true;               // false: unsigned frames pass (signed ones are checked)
     std::string key_file;              // as resolved (relative to the config file's directory)
     std::array<uint8_t, 32> key{};     // read at load time (a new key restarts the endpoint)
+    bool by_bond = false;              // the bond's `signing:` covers this link (require: true)
     bool operator==(const SigningConfig&) const = default;
+};
+
+/// A bond's `signing:` block: both gateways hold the key; each signs what it sends on the
+/// `links` and requires a verified signature on what it receives on them.
+struct BondSigningConfig {
+    bool enabled = false;
+    std::string key_file;                // as resolved
+    std::array<uint8_t, 32> key{};
+    std::vector<std::string> links;      // member endpoint names, in config order (all by default)
+    bool operator==(const BondSigningConfig&) const = default;
 };
 
 /// `tx_classes:`: the order in which a link with a budget (`tx_rate`) spends it. Control goes
@@ -107,17 +126,21 @@ struct BondConfig {
     std::string name;
     enum class Tx { Broadcast, Active } tx = Tx::Broadcast;
     SourceMark mark;
+    SourceMark tx_mark;        // where `tx` is set
     /// Rewrite the sequence number of delivered unsigned frames so a GCS sees the bond's real
-    /// loss (needs a filter that provides aligned positions on the bond, dedup with key:
-    /// content; the filter chain checks it; see src/routing/renumber.h).
-    bool renumber = false;
+    /// loss (needs a filter that provides aligned positions on the bond: dedup; the filter
+    /// chain checks it; see src/routing/renumber.h). Absent: on wherever a filter provides
+    /// them (FilterChain::renumbers).
+    std::optional<bool> renumber;
     SourceMark renumber_mark;  // where `renumber` is set
     /// When a metered member (`cost: metered`) leaves standby and comes back
     /// (routing/standby.h): the free members' loss as the peer reports it.
     double failover_loss = 0.10;      // `failover_loss`: active when every free link is above
     double failback_loss = 0.02;      // `failback_loss`: standby again once one is below...
     Duration failback_after = seconds(10);  // `failback_after`: ...for this long
-    Duration resend = seconds(1);     // `resend`: frames standby held back, resent on failover
+    Duration resend = seconds(3);     // `resend`: frames standby held back, resent on failover
+                                      // (3 s: the longest standby takes to find a radio silent)
+    BondSigningConfig signing;        // `signing`: the bond signs its links (or some of them)
     bool operator==(const BondConfig&) const = default;
 };
 
@@ -125,6 +148,7 @@ struct BondConfig {
 struct IdentityConfig {
     uint8_t sysid = 1;
     uint8_t compid = 191;        // MAV_COMP_ID_ONBOARD_COMPUTER
+    bool compid_given = false;   // set in the file: never derived (routing/identity.h)
     Duration heartbeat{0};       // period of our own HEARTBEAT; 0 = none
     bool operator==(const IdentityConfig&) const = default;
 };
@@ -132,8 +156,10 @@ struct IdentityConfig {
 /// `link_events:` reports bond members going silent, coming back, and active-link switches.
 struct LinkEventsConfig {
     bool enabled = false;        // the section is present
-    bool statustext = true;      // also tell the GCS (STATUSTEXT), not only the log
-    Duration silent_after = seconds(1);
+    /// Also tell the GCS (STATUSTEXT), not only the log; absent: the side facing the GCS does
+    /// (LinkEventMonitor::announces).
+    std::optional<bool> statustext;
+    Duration silent_after = seconds(1);  // the least silence that loses a link (link_events.h)
     Duration min_interval = seconds(2);  // between two STATUSTEXTs about one link or bond
     bool operator==(const LinkEventsConfig&) const = default;
 };

@@ -85,6 +85,9 @@ struct EndpointSchema {
     bool receives = true;
     /// A rule between options: the key to blame and why, when broken.
     std::optional<std::pair<const char*, std::string>> (*check)(const EndpointOptions&) = nullptr;
+    /// A server: its `address` is where it listens, and no other endpoint of its type may
+    /// listen there too (config/listeners.h).
+    bool listens = false;
 
     /// "udp server", "uart".
     std::string title() const { return mode ? std::string(type) + " " + mode : std::string(type); }

@@ -1,15 +1,30 @@
 #include "core/log.h"
 
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <cstdarg>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 
 namespace mavbond {
 namespace {
 
 LogLevel g_level = LogLevel::Info;
+
+/// Whether stderr is the journal's stream: JOURNAL_STREAM names it ("DEV:INODE"), and is
+/// inherited by whatever the service starts, so it counts only if it is still stderr.
+bool stderr_is_journal() {
+    const char* stream = std::getenv("JOURNAL_STREAM");
+    unsigned long long dev = 0, ino = 0;
+    struct stat st {};
+    return stream && sscanf(stream, "%llu:%llu", &dev, &ino) == 2 && fstat(STDERR_FILENO, &st) == 0 &&
+           st.st_dev == dev && st.st_ino == ino;
+}
+
 // Decided once: journald reads priorities from "<N>" prefixes on a stream it set up.
-const bool g_journal = std::getenv("JOURNAL_STREAM") != nullptr;
+const bool g_journal = stderr_is_journal();
 
 const char* level_word(LogLevel level) {
     switch (level) {
@@ -44,10 +59,19 @@ void log_write(LogLevel level, const char* fmt, ...) {
     vsnprintf(line, sizeof line, fmt, ap);
     va_end(ap);
     if (g_journal) {
+        // journald stamps each line itself.
         int priority = level == LogLevel::Trace ? 7 : static_cast<int>(level);
         fprintf(stderr, "<%d>%s\n", priority, line);
     } else {
-        fprintf(stderr, "mavbond: %s: %s\n", level_word(level), line);
+        // By hand, or under another supervisor: the wall clock's local time, to the ms.
+        timespec now{};
+        clock_gettime(CLOCK_REALTIME, &now);
+        tm local{};
+        localtime_r(&now.tv_sec, &local);
+        char stamp[32];
+        size_t n = strftime(stamp, sizeof stamp, "%Y-%m-%d %H:%M:%S", &local);
+        snprintf(stamp + n, sizeof stamp - n, ".%03ld", now.tv_nsec / 1'000'000);
+        fprintf(stderr, "%s mavbond: %s: %s\n", stamp, level_word(level), line);
     }
 }
 

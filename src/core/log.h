@@ -1,5 +1,6 @@
 // Logging to stderr, journald-friendly: under systemd (JOURNAL_STREAM set) each line carries a
-// "<N>" syslog priority prefix that journald maps to a level; otherwise a level word.
+// "<N>" syslog priority prefix that journald maps to a level (journald adds the time);
+// otherwise the local time to the millisecond and a level word.
 #pragma once
 
 #include <optional>

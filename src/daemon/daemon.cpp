@@ -1,12 +1,15 @@
 #include "daemon/daemon.h"
 
+#include <algorithm>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <tuple>
 
 #include "core/log.h"
+#include "core/plural.h"
 #include "mavbond_build_config.h"
+#include "daemon/account.h"
 #include "endpoints/endpoint_types.h"
 
 namespace mavbond {
@@ -16,6 +19,10 @@ namespace {
 // exit, and (shorter: the loop keeps routing) when a reload removes or changes it.
 constexpr Duration kExitFinishBound = milliseconds(500);
 constexpr Duration kReloadFinishBound = milliseconds(50);
+// systemd's STATUS= line: refreshed this often (sent only when it changed); a link is up if
+// heard within this, when link events (which say it otherwise) are off.
+constexpr Duration kServiceStatusPeriod = seconds(5);
+constexpr Duration kUpWithoutLinkEvents = seconds(3);
 
 /// Each bonded endpoint's (name, bond, standby), in config order: the filters number a bond's
 /// links by this order, so a change in it restarts them; a bond is rebuilt with them, so a
@@ -62,6 +69,28 @@ const EndpointConfig* find_endpoint(const Config& c, const std::string& name) {
     return nullptr;
 }
 
+/// Whether a listener's host takes only this machine's connections: 127.0.0.0/8 or ::1 (a
+/// name, even "localhost" spelled otherwise, may resolve anywhere).
+bool loopback_host(const std::string& host) {
+    return host.rfind("127.", 0) == 0 || host == "::1";
+}
+
+/// A listener anyone on a network can reach, with nothing to tell their frames from the
+/// vehicle's or the GCS's: said once, with what to do.
+void warn_if_open(const EndpointConfig& ep) {
+    if (!ep.schema || !ep.schema->mode || std::string_view(ep.schema->mode) != "server" ||
+        !ep.options.has("address"))
+        return;
+    const std::string& host = ep.options.text("address");
+    if (loopback_host(host) || (ep.signing.enabled && ep.signing.require))
+        return;
+    std::string where = host.find(':') != std::string::npos ? "[" + host + "]" : host;
+    log_warning("endpoint '%s' listens on %s:%u without signing: whoever can reach it can send "
+                "the vehicle commands; listen on 127.0.0.1 when only this machine connects, or "
+                "sign it (a bond's links: bonds: signing:; man mavbond.yaml, SIGNING)",
+                ep.name.c_str(), where.c_str(), static_cast<unsigned>(ep.options.port("address")));
+}
+
 }  // namespace
 
 Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Config> config)
@@ -70,6 +99,7 @@ Daemon::Daemon(const DaemonOptions& opts, EventLoop& loop, std::unique_ptr<Confi
 
 Daemon::~Daemon() {
     link_events_.reset();
+    identity_.reset();
     radio_report_.reset();
     standby_.reset();
     // Endpoints go away because the daemon stops, not because links fail: the filters must
@@ -101,6 +131,8 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
         return StartError{kExitConfig, config.error().message};
     std::unique_ptr<Daemon> d(new Daemon(opts, loop, std::move(config.value())));
     log_set_level(opts.check_config ? LogLevel::Warning : d->config_->log_level);
+    for (const EndpointConfig& ep : d->config_->endpoints)
+        warn_if_open(ep);
     // The chain comes before the endpoints (it hears of each one as it registers) and goes
     // after them. --check-config builds it too: plugin options are part of the config.
     auto chain = FilterChain::create(*d->config_, d->config_->plugin_dir, loop, d->router_);
@@ -113,8 +145,14 @@ std::variant<std::unique_ptr<Daemon>, Daemon::StartError> Daemon::prepare(
 void Daemon::start_local_source(bool identity_changed) {
     link_events_.reset();
     standby_.reset();
+    identity_.reset();
     if (identity_changed || !local_source_)
         local_source_ = std::make_unique<LocalSource>(config_->identity, loop_, router_);
+    identity_ = std::make_unique<OwnIdentity>(config_->identity, router_, loop_, *local_source_,
+                                              [this](uint8_t sysid, uint8_t compid) {
+                                                  for (const auto& e : endpoints_)
+                                                      e->set_marker_source(sysid, compid);
+                                              });
     standby_ = std::make_unique<StandbyMonitor>(router_, loop_, *local_source_);
     if (config_->link_events.enabled)
         link_events_ = std::make_unique<LinkEventMonitor>(config_->link_events, router_, loop_,
@@ -124,20 +162,20 @@ void Daemon::start_local_source(bool identity_changed) {
 std::optional<Daemon::StartError> Daemon::start() {
     signal(SIGPIPE, SIG_IGN);  // a vanished TCP peer is an error code, not a death
     auto signals = {
-        std::pair<int, EventLoop::SignalHandler>{SIGINT, [this](int signo) {
-             log_notice("%s: stopping", strsignal(signo));
-             loop_.request_exit(0);
-         }},
-        {SIGTERM, [this](int signo) {
-             log_notice("%s: stopping", strsignal(signo));
-             loop_.request_exit(0);
-         }},
+        std::pair<int, EventLoop::SignalHandler>{SIGINT, [this](int signo) { stop(signo); }},
+        {SIGTERM, [this](int signo) { stop(signo); }},
         {SIGHUP, [this](int) { reload(); }},
         {SIGUSR1, [this](int) { dump_counters(); }},
     };
     for (const auto& [sig, handler] : signals) {
         if (auto r = loop_.on_signal(sig, handler); !r)
             return StartError{kExitOsError, r.error().message};
+    }
+    // Another daemon with this status socket is most likely this one started twice: it would
+    // share its ports too. Refused before anything is opened.
+    if (!config_->status_socket.empty()) {
+        if (auto pid = StatusSocket::answered_by(config_->status_socket))
+            return StartError{kExitOsError, StatusSocket::in_use_message(config_->status_socket, *pid)};
     }
     auto endpoints = make_endpoints(*config_, loop_, router_);
     if (!endpoints)
@@ -161,9 +199,82 @@ std::optional<Daemon::StartError> Daemon::start() {
     loop_.add_after_io_hook([this] { router_.merge_round(); });
     // Anything still queued (a backlog waiting for EPOLLOUT is flushed by its own watch).
     loop_.add_round_hook([this] { router_.end_batch(); });
-    log_notice("mavbond %s running with %zu endpoints from %s", MAVBOND_VERSION,
-               endpoints_.size(), opts_.config_path.c_str());
+    log_notice("mavbond %s running with %s from %s", MAVBOND_VERSION,
+               plural(endpoints_.size(), "endpoint").c_str(), opts_.config_path.c_str());
+    log_derived_settings();
+    start_systemd_notify();
     return std::nullopt;
+}
+
+void Daemon::stop(int signo) {
+    log_notice("%s: stopping", strsignal(signo));
+    if (systemd_)
+        systemd_->stopping();
+    loop_.request_exit(0);
+}
+
+void Daemon::start_systemd_notify() {
+    auto notify = SystemdNotify::from_environment();
+    if (!notify) {
+        log_error("%s: systemd will not hear that mavbond is ready", notify.error().message.c_str());
+        return;
+    }
+    systemd_ = std::move(notify.value());
+    if (!systemd_)
+        return;
+    // Every endpoint is open (a device that is missing is retried: that is its state).
+    service_status_sent_ = service_status();
+    systemd_->ready(service_status_sent_);
+    // On the loop itself: a loop that hangs, or a daemon frozen, stops feeding it.
+    if (const Duration period = systemd_->watchdog_period(); period > Duration::zero()) {
+        watchdog_timer_ = loop_.schedule(period, [this, period] {
+            systemd_->watchdog();
+            return period;
+        });
+        log_info("systemd watchdog: fed every %s", format_duration(period).c_str());
+    }
+    service_status_timer_ = loop_.schedule(kServiceStatusPeriod, [this] {
+        if (std::string line = service_status(); line != service_status_sent_) {
+            systemd_->status(line);
+            service_status_sent_ = std::move(line);
+        }
+        return kServiceStatusPeriod;
+    });
+}
+
+std::string Daemon::service_status() const {
+    const Status s = status();
+    // Up: heard within link events' silence, or within 3 s when they are off.
+    const Duration window = config_->link_events.enabled ? config_->link_events.silent_after
+                                                         : kUpWithoutLinkEvents;
+    std::string line;
+    for (const Status::Bond& bond : s.bonds) {
+        unsigned members = 0, up = 0;
+        for (const Status::Endpoint& e : s.endpoints) {
+            if (e.bond != bond.name)
+                continue;
+            members++;
+            const TimePoint last = e.counters.last_rx;
+            up += last != TimePoint{} && s.taken - last <= window ? 1 : 0;
+        }
+        line += (line.empty() ? "" : "; ") + std::string("bond ") + bond.name + ": " +
+                std::to_string(up) + " of " + std::to_string(members) +
+                (members == 1 ? " link up" : " links up");
+        // The stats filter's own figure, as /metrics serves it.
+        const std::pair<std::string, std::string> label("bond", bond.name);
+        for (const FilterReport& f : s.filters) {
+            for (const MetricSample& m : f.samples) {
+                if (m.name == "mavbond_stats_bond_delivered_loss_ratio" &&
+                    std::find(m.labels.begin(), m.labels.end(), label) != m.labels.end()) {
+                    char loss[48];
+                    snprintf(loss, sizeof loss, ", delivered loss %.2f%%", m.value * 100);
+                    line += loss;
+                }
+            }
+        }
+    }
+    return line + (line.empty() ? "" : "; ") + plural(s.endpoints.size(), "endpoint") + ", " +
+           plural(s.frames_routed, "frame") + " routed";
 }
 
 int Daemon::run() {
@@ -177,9 +288,9 @@ int Daemon::run() {
         e->finish(finish_by);
     dump_counters();
     log_renumbering();
-    log_notice("exit: routed %llu frames, %llu without a destination, %llu held back for arrival "
+    log_notice("exit: routed %s, %llu without a destination, %llu held back for arrival "
                "order; peak RSS %ld KiB",
-               (unsigned long long)router_.frames_routed(),
+               plural(router_.frames_routed(), "frame").c_str(),
                (unsigned long long)router_.frames_without_destination(),
                (unsigned long long)router_.frames_held_back(), peak_rss_kib());
     return code;
@@ -218,6 +329,17 @@ void Daemon::dump_counters() const {
 }
 
 bool Daemon::reload() {
+    if (systemd_)
+        systemd_->reloading();
+    const bool applied = apply_reload();
+    if (systemd_) {
+        service_status_sent_ = service_status();
+        systemd_->ready(service_status_sent_);
+    }
+    return applied;
+}
+
+bool Daemon::apply_reload() {
     log_notice("SIGHUP: reloading %s", opts_.config_path.c_str());
     auto loaded = load(opts_);
     if (!loaded) {
@@ -253,11 +375,20 @@ bool Daemon::reload() {
     router_.set_route_timeout(next->route_timeout);
     const auto [started, failed] = start_endpoints(*next, kept);
     apply_settings(std::move(next));
-    log_notice("reloaded: %zu endpoints kept, %zu stopped, %zu started%s; filters %s",
-               kept_count, running - kept_count, started,
+    log_notice("reloaded: %s kept, %zu stopped, %zu started%s; filters %s",
+               plural(kept_count, "endpoint").c_str(), running - kept_count, started,
                failed ? (", " + std::to_string(failed) + " failed").c_str() : "",
                filters_restart ? "restarted" : "kept");
+    log_derived_settings();
     return true;
+}
+
+void Daemon::log_derived_settings() const {
+    // One block, so the account reads as one: its lines follow the header at once.
+    log_notice("derived settings (what mavbond chose where settings depend on each other, and "
+               "what may make it wrong):");
+    for (const std::string& line : derived_settings(*config_, router_, *chain_))
+        log_notice("  %s", line.c_str());
 }
 
 void Daemon::install_filters(std::unique_ptr<FilterChain> chain, const Config& config) {
@@ -265,6 +396,8 @@ void Daemon::install_filters(std::unique_ptr<FilterChain> chain, const Config& c
     log_renumbering();
     chain_ = std::move(chain);
     router_.replace_bonds(config);
+    for (const BondConfig& b : config.bonds)
+        router_.bond(router_.bond_index(b.name)).set_renumbering(chain_->renumbers(b));
     router_.mark_radio_status_bonds(config);
     router_.set_filter(chain_.get());
 }
@@ -302,7 +435,10 @@ std::map<std::string, Endpoint::Ptr> Daemon::stop_changed_endpoints(const Config
             continue;
         }
         e->finish(finish_by);
-        log_notice("reload: %s", counters_line(endpoint_status(*e), "stopped").c_str());
+        log_notice("reload: %s",
+                   counters_line(endpoint_status(*e, loop_.now(), config_->link_events.silent_after),
+                                 "stopped")
+                       .c_str());
         report_.forget(e->name());
         e.reset();  // closes its sockets before a replacement binds the same address
     }
@@ -318,6 +454,7 @@ std::pair<size_t, size_t> Daemon::start_endpoints(const Config& next,
             endpoints_.push_back(std::move(k->second));
             continue;
         }
+        warn_if_open(ep);
         auto e = make_endpoint(ep, next, loop_, router_);
         if (!e) {
             // The rest of the new config stands; this endpoint is reported and left out.
@@ -339,6 +476,10 @@ void Daemon::apply_settings(std::unique_ptr<Config> next) {
     router_.mark_radio_status_bonds(*config_);
     log_set_level(config_->log_level);
     start_local_source(identity_changed);
+    // Markers from the identity as it is (a derived one kept across the reload), new
+    // endpoints' too.
+    for (const auto& e : endpoints_)
+        e->set_marker_source(local_source_->sysid(), local_source_->compid());
     if (status_moved)
         open_status_socket();
     if (metrics_moved)
@@ -351,7 +492,7 @@ Status Daemon::status() const {
     s.uptime = s.taken - started_;
     s.status_refused = status_ ? status_->refused() : 0;
     for (const auto& e : endpoints_)
-        s.endpoints.push_back(endpoint_status(*e));
+        s.endpoints.push_back(endpoint_status(*e, s.taken, config_->link_events.silent_after));
     for (uint32_t b = 0; b < router_.bonds().size(); b++) {
         const Bond& bond = router_.bonds()[b];
         Status::Bond& out = s.bonds.emplace_back();
@@ -362,15 +503,27 @@ Status Daemon::status() const {
         out.switches = bond.switches();
         for (LinkId id = 0; id < router_.link_id_bound(); id++) {
             const Link* link = router_.link(id);
-            if (link && router_.bond_of(*link) == b)
-                out.links.push_back({link->name(), id == bond.active_link()});
+            if (!link || router_.bond_of(*link) != b)
+                continue;
+            // By endpoint: a server's peers are one member (no address in a metric label).
+            auto it = std::find_if(out.links.begin(), out.links.end(), [&](const Status::BondLink& l) {
+                return l.name == link->endpoint_name();
+            });
+            if (it == out.links.end())
+                it = out.links.insert(out.links.end(), {link->endpoint_name(), false});
+            it->active = it->active || id == bond.active_link();
         }
         out.renumber = bond.renumber_counters();
+        out.numbering = bond.numbering()->counters();
         out.reports_radio_status = bond.reports_radio_status;
         out.foreign_radio_status = bond.foreign_radio_status;
         if (const auto* r = radio_report_ ? radio_report_->find(bond.name()) : nullptr) {
             out.radio_status_sent = r->sent;
             out.radio_status_last = r->last;
+        }
+        if (const auto& signing = bond.signing()) {
+            out.signed_links = bond.signed_links();
+            out.signing = signing->counters();
         }
         if (const Standby* standby = bond.standby()) {
             out.has_standby = true;
@@ -389,6 +542,7 @@ Status Daemon::status() const {
     s.frames_routed = router_.frames_routed();
     s.frames_without_destination = router_.frames_without_destination();
     s.frames_held_back = router_.frames_held_back();
+    s.standby_reports_dropped = router_.standby_reports_dropped();
     s.filters = chain_->report();
     return s;
 }

@@ -17,8 +17,10 @@
 #include "daemon/radio_report.h"
 #include "daemon/status.h"
 #include "daemon/status_socket.h"
+#include "daemon/systemd_notify.h"
 #include "endpoints/endpoint.h"
 #include "routing/filter_chain.h"
+#include "routing/identity.h"
 #include "routing/link_events.h"
 #include "routing/local_source.h"
 #include "routing/router.h"
@@ -53,16 +55,25 @@ public:
 
     const Config& config() const { return *config_; }
     size_t filter_count() const { return chain_->size(); }
+    /// The plugin files the filters were loaded from.
+    std::vector<std::string> plugin_paths() const { return chain_->plugin_paths(); }
 
     /// Opens the endpoints and the daemon's services and installs the signal handlers.
     std::optional<StartError> start();
     /// Runs the loop until SIGINT/SIGTERM; returns the exit code.
     int run();
+    /// SIGINT/SIGTERM: tells systemd (STOPPING=1) and ends the loop.
+    void stop(int signo);
 
     /// Re-reads the config file and applies what changed (SIGHUP). A config that does not load,
     /// or whose filters cannot be created, is refused and the running one kept. Returns whether
-    /// the new config was applied.
+    /// the new config was applied. systemd hears RELOADING=1 before and READY=1 after, either way.
     bool reload();
+
+    /// What `systemctl status` shows (STATUS=): each bond's links up (heard within link
+    /// events' silent_after, 3 s without link events) and its delivered loss as the stats
+    /// filter counts it; the endpoints and frames routed.
+    std::string service_status() const;
 
     /// Every endpoint's counters, the bonds, the router's totals and each filter's report,
     /// now: what the status socket, /metrics and the log lines show.
@@ -83,9 +94,15 @@ private:
     std::map<std::string, Endpoint::Ptr> stop_changed_endpoints(const Config& next);
     std::pair<size_t, size_t> start_endpoints(const Config& next,
                                               std::map<std::string, Endpoint::Ptr>& kept);
+    bool apply_reload();
+    /// Tells systemd, when it started the daemon (Type=notify), that it is ready, and feeds
+    /// its watchdog from a timer on this loop.
+    void start_systemd_notify();
     void apply_settings(std::unique_ptr<Config> next);
     /// mavbond's own frames (`identity:`) and the link events it tells the GCS through them.
     void start_local_source(bool identity_changed);
+    /// Logs what the daemon derived for each bond and its identity, and why (account.h).
+    void log_derived_settings() const;
     void open_status_socket();
     void open_metrics();
     void dump_counters() const;
@@ -97,6 +114,7 @@ private:
     std::unique_ptr<FilterChain> chain_;
     std::vector<Endpoint::Ptr> endpoints_;  // config order
     std::unique_ptr<LocalSource> local_source_;
+    std::unique_ptr<OwnIdentity> identity_;          // remade with the local source's users
     std::unique_ptr<LinkEventMonitor> link_events_;  // remade on reload: it watches endpoints_
     std::unique_ptr<RadioStatusReporter> radio_report_;  // reads endpoints_ at each report
     std::unique_ptr<StandbyMonitor> standby_;        // remade with it: reports of the bonds
@@ -105,6 +123,10 @@ private:
     ProblemReport report_;
     EventLoop::Timer report_timer_;
     EventLoop::Timer route_timer_;
+    std::unique_ptr<SystemdNotify> systemd_;  // nullptr: not started by systemd
+    EventLoop::Timer watchdog_timer_;
+    EventLoop::Timer service_status_timer_;
+    std::string service_status_sent_;
     TimePoint started_{};
 };
 

@@ -19,6 +19,10 @@ namespace mavbond {
 namespace {
 
 constexpr int kDefaultTcpServerPort = 5760;  // mavlink-router listens here unless told 0
+constexpr const char* kServiceLogDir = "/var/log/mavbond";  // the unit's LogsDirectory=
+// A dedup window that covers a radio running a second or more behind LTE (a saturated radio,
+// an LTE handover): what the README's radio + LTE table gives.
+constexpr int64_t kRadioLteWindowMs = 2000;
 constexpr int kDefaultUdpClientPort = 14550; // its first choice for a Normal endpoint
 constexpr uint32_t kDefaultBaud = 115200;
 constexpr uint32_t kMaxMessageId = 0xFFFFFF;
@@ -98,6 +102,14 @@ private:
         if (comments)
             comments->push_back("not translated (line " + std::to_string(line) + "): " + what);
     }
+    /// What is translated, but carries a risk the user must see: a warning and a comment.
+    /// Line 0: the file as a whole (a default of a section it does not have).
+    void risk(int line, const std::string& what, std::vector<std::string>& comments) {
+        const std::string at = line > 0 ? ":" + std::to_string(line) : "";
+        warnings_.push_back(file_ + at + ": " + what);
+        comments.push_back((line > 0 ? "check (line " + std::to_string(line) + "): " : "check: ") +
+                           what);
+    }
 
     std::vector<IniSection> parse_ini(std::string_view text) const;
     std::string section_label(const IniSection& s) const {
@@ -125,6 +137,7 @@ private:
     std::vector<std::string> bonds_;
     std::set<std::string> names_;
     int64_t dedup_ms_ = 0;
+    int dedup_line_ = 0;
     bool report_stats_ = false;
 };
 
@@ -257,6 +270,7 @@ void Importer::general(const IniSection& s) {
             log_level_ = v;
         } else if (k.lower == "deduplicationperiod") {
             dedup_ms_ = integer(k, 0, 1000L * 3600);
+            dedup_line_ = k.line;
         } else if (k.lower == "log") {
             log_dir = k.value;
             log_line = k.line;
@@ -288,6 +302,17 @@ void Importer::general(const IniSection& s) {
                              : "[General]: mavlink-router's default TCP server, port 5760 "
                                "(TcpServerPort = 0 disables it)";
         ep.lines = {"type: tcp", "mode: server", "address: 0.0.0.0:" + std::to_string(port)};
+        // mavlink-router binds its TCP server to every address (0.0.0.0, or [::] in its
+        // later versions), not loopback: kept so, and said, since anyone who reaches the
+        // machine reaches the vehicle through it.
+        risk(tcp_line,
+             std::string(tcp_port ? "TcpServerPort = " + std::to_string(port)
+                                  : "no TcpServerPort: mavlink-router's default TCP server") +
+                 " listens on every address, kept as 0.0.0.0:" + std::to_string(port) +
+                 ": anyone who can reach this machine may connect and command the vehicle; "
+                 "use 127.0.0.1:" + std::to_string(port) + " if only programs on this machine "
+                 "connect, or drop the endpoint",
+             ep.comments);
         endpoints_.push_back(std::move(ep));
     }
     if (!log_dir.empty()) {
@@ -296,7 +321,18 @@ void Importer::general(const IniSection& s) {
         ep.header = "[General] Log (line " + std::to_string(log_line) +
                     "): mavlink-router logged the flight stack there; mavbond logs every routed "
                     "frame as .tlog";
-        ep.lines = {"type: tlog", "directory: " + yaml_text(log_dir)};
+        // The service may write nowhere else (ProtectSystem=strict, LogsDirectory=mavbond).
+        std::string dir = log_dir;
+        if (dir != kServiceLogDir && !dir.starts_with(std::string(kServiceLogDir) + "/")) {
+            dir = kServiceLogDir;
+            risk(log_line,
+                 "Log = " + log_dir + ": mavbond.service may write only under " +
+                     kServiceLogDir + ", so the flight logs go there; to keep " + log_dir +
+                     ", give the service ReadWritePaths=" + log_dir +
+                     " in a drop-in (systemctl edit mavbond) and set the directory back",
+                 ep.comments);
+        }
+        ep.lines = {"type: tlog", "directory: " + yaml_text(dir)};
         endpoints_.push_back(std::move(ep));
     }
 }
@@ -505,10 +541,24 @@ ImportedConfig Importer::run(std::string_view text) {
                                     "Group it has nothing to do");
     if (dedup_ms_ > 0 || report_stats_) {
         y += "filters:\n";
-        if (dedup_ms_ > 0)
+        if (dedup_ms_ > 0) {
             y += "  # DeDuplicationPeriod: a frame that arrives again over another link of its bond\n"
-                 "  # within the window is dropped (a repeat on one link, or outside a bond, passes)\n"
-                 "  - plugin: dedup\n    window: " + std::to_string(dedup_ms_) + "ms\n";
+                 "  # within the window is dropped (a repeat on one link, or outside a bond, passes)\n";
+            if (dedup_ms_ < kRadioLteWindowMs) {
+                std::vector<std::string> comments;
+                risk(dedup_line_,
+                     "DeDuplicationPeriod = " + std::to_string(dedup_ms_) + ", kept as window: " +
+                         std::to_string(dedup_ms_) + "ms: a copy that comes later than that over "
+                         "another link is delivered twice, and a radio beside LTE runs a second "
+                         "or more behind it (saturated, or at an LTE handover); dedup matches "
+                         "copies by identity, so a longer window costs only memory: use window: "
+                         "2s for radio + LTE",
+                     comments);
+                for (const auto& c : comments)
+                    y += "  # " + c + "\n";
+            }
+            y += "  - plugin: dedup\n    window: " + std::to_string(dedup_ms_) + "ms\n";
+        }
         if (report_stats_)
             y += "  # ReportStats: a line of per-link figures each interval\n"
                  "  - plugin: stats\n";

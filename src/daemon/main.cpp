@@ -8,6 +8,7 @@
 
 #include "core/event_loop.h"
 #include "core/log.h"
+#include "core/plural.h"
 #include "daemon/daemon.h"
 #include "daemon/import_mavlink_router.h"
 #include "mavbond_build_config.h"
@@ -109,9 +110,15 @@ int run_daemon(const Options& opts) {
     }
     Daemon& daemon = *std::get<std::unique_ptr<Daemon>>(prepared);
     if (opts.check_config) {
-        printf("%s: OK (%zu endpoints, %zu bonds, %zu filters)\n", opts.config_path.c_str(),
-               daemon.config().endpoints.size(), daemon.config().bonds.size(),
-               daemon.filter_count());
+        // What of the plugins ran: their files were read, not run, before they were loaded;
+        // checking their options takes their own code (create), as a start does.
+        for (const std::string& path : daemon.plugin_paths())
+            printf("%s: checked as a file (owner, mode, machine, ABI, name), then loaded to check "
+                   "its options\n", path.c_str());
+        printf("%s: OK (%s, %s, %s)\n", opts.config_path.c_str(),
+               plural(daemon.config().endpoints.size(), "endpoint").c_str(),
+               plural(daemon.config().bonds.size(), "bond").c_str(),
+               plural(daemon.filter_count(), "filter").c_str());
         return 0;
     }
     if (auto err = daemon.start()) {

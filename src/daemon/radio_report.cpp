@@ -35,10 +35,12 @@ void RadioStatusReporter::report() {
         if (!bond.reports_radio_status)
             continue;
         votes_.clear();
+        const Standby* standby = bond.standby();
         for (const Endpoint::Ptr& e : endpoints_) {
             if (e->config().bond != bond.name())
                 continue;
             RadioVote& v = votes_.emplace_back();
+            v.room = e->take_budget_room(now);
             if (const RadioFlow* radio = e->radio()) {
                 v.reports = true;
                 v.fresh = radio->fresh(now);
@@ -46,6 +48,9 @@ void RadioStatusReporter::report() {
             } else {
                 TimePoint heard = e->total_counters().last_rx;
                 v.alive = heard != TimePoint{} && now - heard < kAlive;
+                const uint32_t member = bond.member_index(e->config().name);
+                v.standby = standby && member != Bond::kNoMember && standby->metered(member) &&
+                            !standby->active();
             }
         }
         std::optional<RadioReport> r = bond_report(votes_);

@@ -21,7 +21,8 @@ namespace mavbond {
 class RadioStatusReporter {
 public:
     static constexpr Duration kInterval = seconds(1);
-    /// A member without radio reports counts as free while it heard its peer this lately.
+    /// A member without radio reports counts as free while it heard its peer this lately (and,
+    /// metered, is not in standby).
     static constexpr Duration kAlive = seconds(3);
 
     /// What one bond's reports were, for the status.

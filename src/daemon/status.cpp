@@ -27,9 +27,16 @@ const std::map<std::string, const char*>& counter_help() {
         {"sig_unsigned", "Unsigned frames on a signing endpoint (dropped when signing is required)."},
         {"sig_bad", "Frames dropped because their signature does not verify."},
         {"sig_replay", "Signed frames dropped as replayed or too old."},
+        {"tx_signed", "Frames sent with the bond's signature (13 bytes more each)."},
         {"resolve_failures", "Lookups of a client's host name that failed (retried with backoff)."},
         {"address_changes", "Lookups of a client's host name that gave a new address."},
         {"peer_rebinds", "UDP peers that went on from a new address (a NAT rebinding): the old one forgotten."},
+        {"stranger_datagrams", "Datagrams to a UDP server from an address that is no peer, with no frame that passed the checks (dropped; the sender stays no peer)."},
+        {"peers_evicted", "UDP peers forgotten to make room for a new one (a full peer table: the least recently heard)."},
+        {"clients_refused", "TCP connections refused: max_clients_per_address or 32 clients reached."},
+        {"clients_idle_closed", "TCP clients closed for bringing no valid frame for idle_timeout."},
+        {"routes_evicted", "Routes learned on the endpoint's links forgotten to make room (the per-link cap)."},
+        {"markers_foreign", "Count markers that named another link (captured there and replayed, or a far side that names the link otherwise): not counted."},
     };
     return help;
 }
@@ -43,6 +50,19 @@ const std::map<std::string, const char*>& renumber_help() {
         {"unplaced", "Frames delivered before dedup could place them in the stream (given the next number)."},
         {"untracked", "Frames of sources beyond the renumbering table (left as they were)."},
         {"signed_left_alone", "Signed frames passed with their own number (the signature covers it)."},
+        {"added", "Frames mavbond added to a source's numbering (link events told as the vehicle)."},
+    };
+    return help;
+}
+
+/// Help texts of a signed bond's counters, in their for_each_counter names.
+const std::map<std::string, const char*>& signing_help() {
+    static const std::map<std::string, const char*> help = {
+        {"signed", "Frames this side signed for a bond's signed links."},
+        {"verified", "Frames the peer signed for the bond that verified on a member."},
+        {"redelivered", "Copies of a signed frame delivered before that the filters let through "
+                        "(dedup had forgotten it): not delivered again."},
+        {"refused_v1", "MAVLink 1 frames kept off a bond's signed links (they cannot be signed)."},
     };
     return help;
 }
@@ -58,6 +78,27 @@ const std::map<std::string, const char*>& tx_class_help() {
     };
     return help;
 }
+
+/// `text` as a JSON string: quoted, with quotes, backslashes and control characters escaped.
+std::string json_string(const std::string& text) {
+    std::string out = "\"";
+    for (char c : text) {
+        if (c == '"' || c == '\\') {
+            out += '\\';
+            out += c;
+        } else if (static_cast<unsigned char>(c) < 0x20) {
+            char esc[8];
+            snprintf(esc, sizeof esc, "\\u%04x", static_cast<unsigned>(c));
+            out += esc;
+        } else {
+            out += c;
+        }
+    }
+    return out + "\"";
+}
+
+/// The states an endpoint may be in (Status::Endpoint::state), for /metrics' state set.
+constexpr const char* kEndpointStates[] = {"up", "standby", "down", "closed"};
 
 int64_t ms_since(TimePoint t, TimePoint now) {
     return std::chrono::duration_cast<milliseconds>(now - t).count();
@@ -99,12 +140,22 @@ std::string radio_json(const RadioFlow& r, TimePoint now) {
 
 }  // namespace
 
-Status::Endpoint endpoint_status(const Endpoint& e) {
+Status::Endpoint endpoint_status(const Endpoint& e, TimePoint now, Duration silent_after) {
     Status::Endpoint out{e.name(), e.kind(), e.config().bond,
                          e.config().signing.enabled && e.config().signing.require,
-                         e.budget() ? e.budget()->bytes_per_s() : 0, e.total_counters(), {}};
+                         e.budget() ? e.budget()->bytes_per_s() : 0, e.total_counters(), {},
+                         e.open_error()};
     if (e.radio())
         out.radio = *e.radio();
+    e.for_each_link([&out](const Link& link) {
+        out.standby = out.standby || link.standby();
+        out.peer_standby = out.peer_standby || (link.account().exact() && link.account().peer_standby());
+    });
+    const TimePoint last = out.counters.last_rx;
+    out.state = !out.open_error.empty()                                         ? "closed"
+                : !out.bond.empty() && (last == TimePoint{} || now - last > silent_after) ? "down"
+                : out.standby || out.peer_standby                               ? "standby"
+                                                                                : "up";
     return out;
 }
 
@@ -115,7 +166,12 @@ std::string status_json(const Status& s) {
     for (size_t i = 0; i < s.endpoints.size(); i++) {
         const Status::Endpoint& e = s.endpoints[i];
         out += std::string(i ? "," : "") + "{\"name\":\"" + e.name + "\",\"kind\":\"" + e.kind +
-               "\",\"bond\":\"" + e.bond + "\"";
+               "\",\"bond\":\"" + e.bond + "\",\"state\":\"" + e.state + "\",\"open\":" +
+               (e.open_error.empty() ? "true" : "false");
+        if (!e.open_error.empty())
+            out += ",\"open_error\":" + json_string(e.open_error);
+        out += std::string(",\"standby\":") + (e.standby ? "true" : "false") +
+               ",\"peer_standby\":" + (e.peer_standby ? "true" : "false");
         for_each_counter(e.counters, [&out](const char* name, uint64_t value) {
             out += std::string(",\"") + name + "\":" + std::to_string(value);
         });
@@ -145,6 +201,9 @@ std::string status_json(const Status& s) {
         out += std::string(i ? "," : "") + "{\"name\":\"" + b.name + "\",\"tx\":\"" +
                (b.tx_active ? "active" : "broadcast") + "\",\"active\":\"" + b.active +
                "\",\"switches\":" + std::to_string(b.switches);
+        out += ",\"numbering\":{\"numbered\":" + std::to_string(b.numbering.numbered) +
+               ",\"expired\":" + std::to_string(b.numbering.expired) +
+               ",\"untracked\":" + std::to_string(b.numbering.untracked) + "}";
         if (!b.renumber.empty()) {
             out += ",\"renumber\":{";
             for (const auto& [name, value] : b.renumber)
@@ -165,17 +224,30 @@ std::string status_json(const Status& s) {
                    ",\"to_standby\":" + std::to_string(c.to_standby) +
                    ",\"withheld\":" + std::to_string(c.withheld) +
                    ",\"resent\":" + std::to_string(c.resent) +
+                   ",\"resend_skipped\":" + std::to_string(c.resend_skipped) +
                    ",\"reports_sent\":" + std::to_string(c.reports_sent) +
                    ",\"reports_received\":" + std::to_string(c.reports_received) +
+                   ",\"reports_ignored\":" + std::to_string(c.reports_ignored) +
                    ",\"peer_loss_permille\":{";
             for (size_t k = 0; k < b.peer_loss.size(); k++)
                 out += std::string(k ? "," : "") + "\"" + b.peer_loss[k].first +
                        "\":" + std::to_string(b.peer_loss[k].second);
             out += "}}";
         }
+        if (!b.signed_links.empty()) {
+            out += ",\"signing\":{\"links\":[";
+            for (size_t k = 0; k < b.signed_links.size(); k++)
+                out += std::string(k ? "," : "") + "\"" + b.signed_links[k] + "\"";
+            out += "]";
+            for_each_counter(b.signing, [&out](const char* name, uint64_t v) {
+                out += std::string(",\"") + name + "\":" + std::to_string(v);
+            });
+            out += "}";
+        }
         out += "}";
     }
-    out += "],\"filters\":[";
+    out += "],\"standby_reports_dropped\":" + std::to_string(s.standby_reports_dropped) +
+           ",\"filters\":[";
     for (size_t i = 0; i < s.filters.size(); i++) {
         const FilterReport& f = s.filters[i];
         out += std::string(i ? "," : "") + "{\"name\":\"" + f.name + "\",\"plugin\":\"" + f.plugin +
@@ -197,6 +269,18 @@ MetricSet status_metrics(const Status& s) {
     // or connection it has had).
     for (const Status::Endpoint& e : s.endpoints) {
         MetricLabels labels{{"endpoint", e.name}, {"kind", e.kind}, {"bond", e.bond}};
+        set.gauge("mavbond_endpoint_open",
+                  "1 while the endpoint is open (a UART opened, a TCP client connected, a name "
+                  "resolved); the status socket says why not.",
+                  e.open_error.empty() ? 1 : 0, labels);
+        for (const char* state : kEndpointStates) {
+            MetricLabels with_state = labels;
+            with_state.emplace_back("state", state);
+            set.gauge("mavbond_endpoint_state",
+                      "1 for the state an endpoint is in: up, standby (either side keeps it to "
+                      "control), down (a bond member its far side is not heard on), closed.",
+                      e.state == state ? 1 : 0, with_state);
+        }
         for_each_counter(e.counters, [&](const char* name, uint64_t value) {
             auto help = counter_help().find(name);
             set.counter(std::string("mavbond_endpoint_") + name,
@@ -246,8 +330,9 @@ MetricSet status_metrics(const Status& s) {
                 "Frames that had nowhere to go (no other endpoint, or an unknown target).",
                 s.frames_without_destination);
     set.counter("mavbond_router_frames_held_back",
-                "Frames of a bond's link held back past the round that read them for frames "
-                "that arrived before them on another link (after a stall).",
+                "Frames of a bond's link that waited for its other links to be read up to "
+                "their arrival (arrival order): most frames of a UART or TCP member, for one "
+                "loop round; a datagram only after a stall or a burst.",
                 s.frames_held_back);
     const char* active_help = "1 for the active link of a bond (tx: active), 0 for its others.";
     set.declare("mavbond_bond_active_link", active_help, MetricSet::Type::Gauge);
@@ -262,6 +347,15 @@ MetricSet status_metrics(const Status& s) {
         for (const auto& [name, value] : b.renumber)
             set.counter(std::string("mavbond_renumber_") + name, renumber_help().at(name), value,
                         {{"bond", b.name}});
+        set.counter("mavbond_bond_numbered",
+                    "Frames the bond numbered as their first copy went (frames it never sent take "
+                    "no number).", b.numbering.numbered, {{"bond", b.name}});
+        set.counter("mavbond_bond_numbering_expired",
+                    "Frames that waited so long their ticket was reused: given a fresh number.",
+                    b.numbering.expired, {{"bond", b.name}});
+        set.counter("mavbond_bond_numbering_untracked",
+                    "Frames of sources beyond the bond's numbering table: sent as they came.",
+                    b.numbering.untracked, {{"bond", b.name}});
         if (b.reports_radio_status) {
             set.counter("mavbond_bond_radio_status_sent",
                         "RADIO_STATUS frames mavbond sent the local side for the bond.",
@@ -293,16 +387,35 @@ MetricSet status_metrics(const Status& s) {
             set.counter("mavbond_standby_resent",
                         "Frames standby held back and sent on a metered link when it went active.",
                         c.resent, bond);
+            set.counter("mavbond_standby_resend_skipped",
+                        "Frames standby held back and did not resend: further back than the "
+                        "metered link's numbering of their source can place.",
+                        c.resend_skipped, bond);
             set.counter("mavbond_standby_reports_sent",
                         "Link loss reports sent to the peer (NAMED_VALUE_INT).", c.reports_sent, bond);
             set.counter("mavbond_standby_reports_received",
                         "Link loss reports received from the peer.", c.reports_received, bond);
+            set.counter("mavbond_standby_reports_ignored",
+                        "Reports received that named no free link of the bond (ignored).",
+                        c.reports_ignored, bond);
             for (const auto& [link, permille] : b.peer_loss)
                 set.gauge("mavbond_standby_peer_loss_ratio",
                           "A free link's loss as the peer last reported it (1: silent).",
                           permille / 1000.0, {{"bond", b.name}, {"link", link}});
         }
     }
+    for (const Status::Bond& b : s.bonds) {
+        if (b.signed_links.empty())
+            continue;
+        for_each_counter(b.signing, [&](const char* name, uint64_t v) {
+            set.counter(std::string("mavbond_bond_") + name, signing_help().at(name), v,
+                        {{"bond", b.name}});
+        });
+    }
+    set.counter("mavbond_standby_reports_dropped",
+                "Standby reports (mbl:) no bond took: from outside every bond, or on a bond "
+                "without a metered link. Never routed on.",
+                s.standby_reports_dropped);
     set.declare(kFilterDroppedMetric, kFilterDroppedHelp, MetricSet::Type::Counter);
     // The chain checked its samples against one another; one that clashes with a family of
     // the host's (a plugin named like one) is left out.
@@ -357,6 +470,18 @@ void ProblemReport::run(const Status& status, Duration interval) {
             e.signing_required ? "unsigned frames dropped" : "unsigned frames let through");
         add(now.sig_bad - was.sig_bad, "frames with a bad signature dropped");
         add(now.sig_replay - was.sig_replay, "replayed or stale signed frames dropped");
+        add(now.stranger_datagrams - was.stranger_datagrams,
+            "datagrams from strangers dropped (no frame that passed the checks)");
+        add(now.peers_evicted - was.peers_evicted, "peers forgotten to make room for new ones");
+        add(now.clients_refused - was.clients_refused,
+            "connections refused (max_clients_per_address or 32 clients)");
+        add(now.clients_idle_closed - was.clients_idle_closed,
+            "clients closed for bringing no valid frame (idle_timeout)");
+        add(now.routes_evicted - was.routes_evicted,
+            "routes forgotten to make room (more than 128 systems and components on one link)");
+        add(now.markers_foreign - was.markers_foreign,
+            "count markers naming another link ignored (name the bond's links alike on both "
+            "sides; else one captured on another link)");
         if (!what.empty())
             log_notice("[%s] %s in the last %.0fs", e.name.c_str(), what.c_str(), secs);
         was = now;

@@ -29,9 +29,15 @@ struct Status {
         uint64_t tx_rate = 0;  // its budget in bytes a second (tx_rate); 0: none
         LinkCounters counters;
         std::optional<RadioFlow> radio;  // `radio_status`: its radio's reports and their effect
+        std::string open_error;  // why it is not open; "" when it is
+        bool standby = false;       // its bond keeps it to control (a metered member)
+        bool peer_standby = false;  // so does the far side, its count markers say
+        /// "closed" (not open), "down" (a bond member the far side is not heard on: nothing
+        /// for link_events' silent_after), "standby" (either side keeps it to control), "up".
+        std::string state;
     };
     struct BondLink {
-        std::string name;
+        std::string name;  // the member's endpoint (a server's peers together)
         bool active = false;
     };
     struct Bond {
@@ -41,6 +47,7 @@ struct Status {
         uint64_t switches = 0;
         std::vector<BondLink> links;  // the members' links attached now
         std::vector<std::pair<const char*, uint64_t>> renumber;  // empty: no renumbering
+        EgressNumbering::Counters numbering;  // of what it sends
         bool reports_radio_status = false;       // a member has `radio_status`
         uint64_t foreign_radio_status = 0;       // others' RADIO_STATUS dropped on its members
         uint64_t radio_status_sent = 0;          // its own sent to the local side
@@ -51,6 +58,9 @@ struct Status {
         uint64_t metered_tx_bytes = 0;  // sent on the metered members' links, every frame
         Standby::Counters standby;
         std::vector<std::pair<std::string, int32_t>> peer_loss;  // free link (peer's name), per mille
+        /// With `signing:` (mavlink/bond_signing.h): the links it signs and what it did.
+        std::vector<std::string> signed_links;  // empty: it signs none
+        BondSigning::Counters signing;
     };
 
     TimePoint taken;
@@ -61,11 +71,13 @@ struct Status {
     uint64_t frames_routed = 0;
     uint64_t frames_without_destination = 0;
     uint64_t frames_held_back = 0;
+    uint64_t standby_reports_dropped = 0;  // `mbl:` reports no bond's standby took (Router)
     std::vector<FilterReport> filters;
 };
 
-/// What one endpoint shows of itself now.
-Status::Endpoint endpoint_status(const Endpoint& endpoint);
+/// What one endpoint shows of itself at `now`; a bond member not heard for `silent_after` is
+/// down.
+Status::Endpoint endpoint_status(const Endpoint& endpoint, TimePoint now, Duration silent_after);
 
 /// The status socket's document: version, uptime, endpoints with every counter, bonds, filters.
 std::string status_json(const Status& status);

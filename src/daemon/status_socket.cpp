@@ -10,6 +10,7 @@
 #include <cstring>
 
 #include "core/log.h"
+#include "core/unique_fd.h"
 
 namespace mavbond {
 namespace {
@@ -44,11 +45,14 @@ Result<std::unique_ptr<StatusSocket>> StatusSocket::open(const std::string& path
     UniqueFd fd(socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
     if (!fd)
         return make_error(std::string("socket: ") + strerror(errno));
-    // A socket left by a previous run (a crash, a kill -9) is replaced; any other file is not.
+    // A socket left by a previous run (a crash, a kill -9) is replaced; one a running process
+    // answers on, or any other file, is not.
     struct stat st {};
     if (lstat(path.c_str(), &st) == 0) {
         if (!S_ISSOCK(st.st_mode))
             return make_error("status socket " + path + " exists and is not a socket");
+        if (auto pid = answered_by(path))
+            return make_error(in_use_message(path, *pid));
         unlink(path.c_str());
     }
     mode_t old = umask(0117);  // 0660
@@ -58,7 +62,10 @@ Result<std::unique_ptr<StatusSocket>> StatusSocket::open(const std::string& path
         return make_error("cannot bind status socket " + path + ": " + strerror(errno));
     if (listen(fd.get(), 8) < 0)
         return make_error("cannot listen on status socket " + path + ": " + strerror(errno));
-    std::unique_ptr<StatusSocket> s(new StatusSocket(path, std::move(fd), std::move(producer)));
+    if (lstat(path.c_str(), &st) < 0)
+        return make_error("status socket " + path + ": " + strerror(errno));
+    std::unique_ptr<StatusSocket> s(
+        new StatusSocket(path, std::move(fd), std::move(producer), st.st_dev, st.st_ino));
     auto w = loop.watch(s->fd_.get(), EPOLLIN, [p = s.get()](uint32_t) { p->on_accept(); });
     if (!w)
         return w.error();
@@ -67,9 +74,37 @@ Result<std::unique_ptr<StatusSocket>> StatusSocket::open(const std::string& path
     return s;
 }
 
+std::optional<pid_t> StatusSocket::answered_by(const std::string& path) {
+    sockaddr_un addr{};
+    addr.sun_family = AF_UNIX;
+    if (path.size() >= sizeof addr.sun_path)
+        return std::nullopt;
+    std::memcpy(addr.sun_path, path.c_str(), path.size() + 1);
+    UniqueFd fd(socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
+    if (!fd)
+        return std::nullopt;
+    // Non-blocking: a full backlog (EAGAIN) is a live listener too, and never a wait.
+    if (connect(fd.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) < 0 &&
+        errno != EAGAIN)
+        return std::nullopt;  // ECONNREFUSED: nobody listens; the file is a leftover
+    ucred cred{};
+    socklen_t len = sizeof cred;
+    return getsockopt(fd.get(), SOL_SOCKET, SO_PEERCRED, &cred, &len) == 0 ? cred.pid : 0;
+}
+
+std::string StatusSocket::in_use_message(const std::string& path, pid_t pid) {
+    return "status socket " + path + ": a running process" +
+           (pid > 0 ? " (pid " + std::to_string(pid) + ")" : std::string()) +
+           " answers there, another mavbond with the same status_socket: stop it first, or "
+           "give this one a status_socket of its own";
+}
+
 StatusSocket::~StatusSocket() {
     watch_.reset();
-    unlink(path_.c_str());
+    // Only the file this socket made: another daemon may have replaced it since.
+    struct stat st {};
+    if (lstat(path_.c_str(), &st) == 0 && st.st_dev == dev_ && st.st_ino == ino_)
+        unlink(path_.c_str());
 }
 
 void StatusSocket::on_accept() {

@@ -90,6 +90,20 @@ bool same_address(const SocketAddress& a, const SocketAddress& b) {
     return a.len_ == b.len_;
 }
 
+bool same_host(const SocketAddress& a, const SocketAddress& b) {
+    SocketAddress x = a, y = b;
+    x.set_port(0);
+    y.set_port(0);
+    return same_address(x, y);
+}
+
+void SocketAddress::set_port(uint16_t port) {
+    if (family() == AF_INET)
+        reinterpret_cast<sockaddr_in*>(&storage_)->sin_port = htons(port);
+    else if (family() == AF_INET6)
+        reinterpret_cast<sockaddr_in6*>(&storage_)->sin6_port = htons(port);
+}
+
 bool is_numeric_host(const std::string& host) { return !SocketAddress::numeric(host, 0).empty(); }
 
 std::string host_port_text(const std::string& host, uint16_t port) {
@@ -239,15 +253,27 @@ Result<BoundSocket> bind_socket(int type, const std::string& host, uint16_t port
     auto fd = make_socket(addr->family(), type, rx_buffer, name);
     if (!fd)
         return fd.error();
-    int one = 1;
-    setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    // A listener may take its port back from connections of a daemon that just stopped
+    // (TIME_WAIT). A UDP port has no such state, and SO_REUSEADDR there would let any local
+    // user bind it too and take the datagrams meant for the daemon: never on UDP.
+    if (type == SOCK_STREAM) {
+        int one = 1;
+        setsockopt(fd->get(), SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    }
     if (addr->family() == AF_INET6) {
         // [::] takes IPv4 peers too, whatever net.ipv6.bindv6only says; [::1] is IPv6 alone.
         int v6only = 0;
         setsockopt(fd->get(), IPPROTO_IPV6, IPV6_V6ONLY, &v6only, sizeof v6only);
     }
-    if (bind(fd->get(), addr->get(), addr->size()) < 0)
-        return make_error("cannot bind " + addr->to_string() + ": " + errno_text(errno));
+    if (bind(fd->get(), addr->get(), addr->size()) < 0) {
+        int err = errno;
+        std::string why = "cannot bind " + addr->to_string() + ": " + errno_text(err);
+        if (err == EADDRINUSE)
+            why += std::string(" (another process listens there: ss -") +
+                   (type == SOCK_DGRAM ? "u" : "t") + "lpn 'sport = :" +
+                   std::to_string(addr->port()) + "' names it)";
+        return make_error(why);
+    }
     return BoundSocket{std::move(fd.value()), *addr};
 }
 

@@ -27,6 +27,7 @@ public:
     bool empty() const { return len_ == 0; }
     int family() const { return storage_.ss_family; }
     uint16_t port() const;
+    void set_port(uint16_t port);
     const sockaddr* get() const { return reinterpret_cast<const sockaddr*>(&storage_); }
     socklen_t size() const { return len_; }
     /// For recvfrom/accept: the kernel fills it, then set_size() says how much it wrote.
@@ -39,6 +40,8 @@ public:
     std::string to_string() const;
     /// The same address and port (what tells two peers apart).
     friend bool same_address(const SocketAddress& a, const SocketAddress& b);
+    /// The same address, whatever the ports (one host's connections).
+    friend bool same_host(const SocketAddress& a, const SocketAddress& b);
 
 private:
     sockaddr_storage storage_{};
@@ -99,8 +102,9 @@ private:
 /// time and the socket's drop count; `name` names it in a warning when the kernel gives less.
 Result<UniqueFd> make_socket(int family, int type, size_t rx_buffer = 0,
                              const std::string& name = "");
-/// A socket of `type` bound to host:port (SO_REUSEADDR), for the servers. An IPv6 wildcard
-/// (`[::]`) takes IPv4 peers too (dual stack).
+/// A socket of `type` bound to host:port, for the servers: a port in use is an error (a TCP
+/// listener takes SO_REUSEADDR, for its old connections only; a UDP socket never shares). An
+/// IPv6 wildcard (`[::]`) takes IPv4 peers too (dual stack).
 struct BoundSocket {
     UniqueFd fd;
     SocketAddress addr;

@@ -34,7 +34,7 @@ void RadioFlow::set_ceiling(uint64_t ceiling) {
     rate_ = std::clamp(rate_, floor(), ceiling_);
 }
 
-uint64_t RadioFlow::report(const RadioReport& r, TimePoint now) {
+uint64_t RadioFlow::report(const RadioReport& r, TimePoint now, bool rate_was_limit) {
     counters_.reports++;
     last_ = r;
     last_at_ = now;
@@ -44,7 +44,7 @@ uint64_t RadioFlow::report(const RadioReport& r, TimePoint now) {
         rate_ = std::max(rate_ / 2, floor());
     else if (r.txbuf < kLow)
         rate_ = std::max(rate_ - rate_ / 4, floor());
-    else if (r.txbuf > kPlenty)
+    else if (r.txbuf > kPlenty && rate_was_limit)
         rate_ = std::min(rate_ + std::max<uint64_t>(ceiling_ / kIncreaseShare, 1), ceiling_);
     counters_.decreases += rate_ < before;
     counters_.increases += rate_ > before;
@@ -60,20 +60,33 @@ uint64_t RadioFlow::check(TimePoint now) {
     return rate_;
 }
 
+uint8_t budget_room(uint64_t offered_frames, uint64_t offered_bytes, uint64_t lost, uint64_t rate,
+                    double seconds) {
+    if (lost != 0)
+        return lost * 10 > offered_frames ? 10 : 40;
+    if (seconds <= 0)
+        return 100;  // nothing measured yet
+    const double carried = static_cast<double>(rate) * seconds;
+    const auto offered = static_cast<double>(offered_bytes);
+    if (offered >= 0.85 * carried)
+        return 70;
+    return offered >= 0.70 * carried ? 92 : 100;
+}
+
 std::optional<RadioReport> bond_report(std::span<const RadioVote> members) {
     std::optional<uint8_t> txbuf;
     const RadioReport* best = nullptr;
     uint16_t rxerrors = 0, fixed = 0;
     for (const RadioVote& m : members) {
         if (!m.reports) {
-            if (m.alive)
-                txbuf = 100;
+            if (m.alive && !m.standby)
+                txbuf = std::max<uint8_t>(txbuf.value_or(0), m.room);
             continue;
         }
         if (!m.fresh)
             continue;
         const RadioReport& r = m.last;
-        txbuf = std::max<uint8_t>(txbuf.value_or(0), std::min<uint8_t>(r.txbuf, 100));
+        txbuf = std::max<uint8_t>(txbuf.value_or(0), std::min<uint8_t>({r.txbuf, m.room, 100}));
         rxerrors = saturating_add(rxerrors, r.rxerrors);
         fixed = saturating_add(fixed, r.fixed);
         // 255 is "unknown": weaker than any measured rssi.

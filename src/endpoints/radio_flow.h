@@ -10,14 +10,20 @@
 //     the rate is too high by an unknown amount, one that stays empty says there is room):
 //       txbuf < 20   the rate halves          (the buffer is nearly full)
 //       txbuf < 50   the rate loses a quarter
-//       txbuf > 90   the rate gains a tenth of the ceiling, up to the ceiling
+//       txbuf > 90   the rate gains a tenth of the ceiling, up to the ceiling, when the rate
+//                    held the stream back since the last report (an empty buffer says
+//                    nothing of a rate the sender never used: as TCP's window does not grow
+//                    while the application sends less than it allows, RFC 7661)
 //       otherwise    it stays
 //     never below a sixteenth of the ceiling (control frames go regardless: tx_budget.h). The
 //     ceiling is the configured tx_rate (a UART's baud without one). Reports that stop for
 //     kStale put the rate back to the ceiling: nothing is known any more, and the line's own
 //     rate is what mavbond knew before the radio spoke.
 //   - bond_report() makes the report the autopilot gets for a whole bond: the bond is
-//     redundant, so it can carry the stream while its best member can. See its comment.
+//     redundant, so it can carry the stream while its best member can. See its comment. A
+//     member with a budget has a say of its own beside its radio's (budget_room): a radio
+//     whose buffer mavbond keeps from filling always looks free, while the budget thins what
+//     the autopilot sends beyond it; only the autopilot, slowed, can send less.
 #pragma once
 
 #include <cstdint>
@@ -51,8 +57,9 @@ public:
 
     /// A new configured rate (a reload): the rate keeps what the reports made it, within it.
     void set_ceiling(uint64_t ceiling);
-    /// Takes a report; returns the rate now.
-    uint64_t report(const RadioReport& r, TimePoint now);
+    /// Takes a report; `rate_was_limit`: the budget held the stream back since the last one
+    /// (thinned samples, a queue waiting). Returns the rate now.
+    uint64_t report(const RadioReport& r, TimePoint now, bool rate_was_limit = true);
     /// Puts the rate back to the ceiling when no report came for kStale; returns the rate now.
     uint64_t check(TimePoint now);
 
@@ -80,13 +87,29 @@ struct RadioVote {
     bool fresh = false;    // ... and its radio reported within RadioFlow::kStale
     RadioReport last;      // ... what it said last
     bool alive = false;    // a member without reports: it heard its peer lately
+    bool standby = false;  // a metered member in standby: control only, no room for streams
+    uint8_t room = 100;    // what its budget says, as a txbuf (budget_room); 100 without one
 };
+
+/// What a member's budget says of the room for the autopilot's stream, as a RADIO_STATUS
+/// txbuf, from what the budget was offered and did over the last report's interval (`load`
+/// its TxBudget::Load there, `rate` bytes a second, `seconds`): ArduPilot slows its streams
+/// below 50 and speeds them up above 90 (a step of 20 to 60 ms per stream per report), so
+///   frames lost (thinned, dropped)  more than a tenth 10, else 40: slow down
+///   offered 85 % of the rate or more                    70: hold (one step up would overflow)
+///   offered 70 % or more                                92: a small step up
+///   less                                               100
+/// Every step keeps clear of the next, so the autopilot settles below the rate, not around it.
+uint8_t budget_room(uint64_t offered_frames, uint64_t offered_bytes, uint64_t lost, uint64_t rate,
+                    double seconds);
 
 /// The report for a whole bond, or nullopt when no member can say. `txbuf` is the best
 /// member's: a redundant bond carries the stream while one member can, so the autopilot slows
 /// only when none can, and a slow member with a fast partner does not throttle it. A member
 /// without radio reports (an LTE link) has no buffer mavbond knows of: it counts as free while
-/// it hears its peer, and not at all when it does not. The signal fields come from the radio
+/// it hears its peer, and not at all when it does not, nor while it stands by (a metered
+/// member in standby carries control only: the autopilot must slow to what the radio
+/// carries, and speeds up again when the metered member is active). The signal fields come from the radio
 /// with the most free buffer (ties: the stronger rssi), the error counts are summed over the
 /// radios that report.
 std::optional<RadioReport> bond_report(std::span<const RadioVote> members);

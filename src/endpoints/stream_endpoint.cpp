@@ -112,8 +112,11 @@ void StreamEndpoint::read_frames() {
             TimePoint arrival = Clock::now();
             parser_.commit(static_cast<size_t>(n));
             Frame frame;
+            bool any_valid = false;
             while (parser_.next(frame))
-                receive(frames_, frame, arrival);
+                any_valid |= valid(receive(frames_, frame, arrival));
+            if (any_valid)
+                heard_valid(arrival);
             frames_.submit();
             stats_.rx = parser_.counters();
             // Frames lent to other links point into the parser: sent before reading on.

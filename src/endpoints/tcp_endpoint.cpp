@@ -14,7 +14,15 @@ namespace {
 
 constexpr EndpointOption kTcpServerOptions[] = {
     {"address", OptionKind::Address, nullptr,
-     "Where to listen (0.0.0.0:5760; [::]:5760 for IPv6 and IPv4).", true},
+     "Where to listen (0.0.0.0:5760; [::]:5760 for IPv6 and IPv4). 32 clients at most.", true},
+    {"max_clients_per_address", OptionKind::Count, "8",
+     "Clients from one address at most; one more is refused (counted as clients_refused, "
+     "logged once per report_interval), as is one past 32 in all."},
+    {"idle_timeout", OptionKind::Time, "30s",
+     "A client that brings no valid frame this long (its CRC checked; with signing, its "
+     "signature verified) is closed (clients_idle_closed): a connection held open without "
+     "MAVLink keeps no place. A ground station's HEARTBEAT keeps it; a client that only "
+     "reads (a logger sending nothing) is closed too, and reconnects: raise it for one."},
 };
 
 constexpr EndpointOption kTcpClientOptions[] = {
@@ -38,7 +46,7 @@ void set_nodelay(int fd) {
 const EndpointSchema kTcpServerType = {"tcp", "server",
                                        "A TCP listener; each client it accepts is a link of its "
                                        "own.",
-                                       kTcpServerOptions};
+                                       kTcpServerOptions, true, nullptr, true};
 const EndpointSchema kTcpClientType = {"tcp", "client",
                                        "A TCP connection, made again with backoff when it "
                                        "cannot be made or is lost.",
@@ -46,16 +54,23 @@ const EndpointSchema kTcpClientType = {"tcp", "client",
 
 // --- TcpConnection -------------------------------------------------------------------------
 
-TcpConnection::TcpConnection(TcpServer& server, const SocketAddress& peer)
+TcpConnection::TcpConnection(TcpServer& server, const SocketAddress& peer, TimePoint now)
     : StreamEndpoint(server.config(), server.name() + "@" + to_string(peer), server.loop(),
                      server.sink_, server.policy_, &server),
-      server_(server) {}
+      server_(server), peer_(peer), connected_at_(now) {}
 
 TcpConnection::~TcpConnection() { sink_.detach(*this); }
 
 void TcpConnection::on_disconnect(const std::string& reason) {
-    log_info("[tcp:%s] client %s gone: %s", server_.name().c_str(), name().c_str(), reason.c_str());
+    if (server_.client_log_.allow(loop_.now()))
+        log_info("[tcp:%s] client %s gone: %s%s", server_.name().c_str(), name().c_str(),
+                 reason.c_str(), server_.client_log_.left_out_note().c_str());
     server_.drop_client(*this);
+}
+
+void TcpConnection::close(const std::string& reason) {
+    stop_stream();
+    on_disconnect(reason);
 }
 
 // --- TcpServer -----------------------------------------------------------------------------
@@ -74,6 +89,12 @@ Result<std::unique_ptr<TcpServer>> TcpServer::open(const EndpointConfig& config,
     if (!w)
         return w.error();
     server->watch_ = std::move(w.value());
+    Duration idle = config.options.duration("idle_timeout");
+    auto period = std::clamp<Duration>(idle / 4, milliseconds(100), seconds(5));
+    server->idle_timer_ = loop.schedule(period, [s = server.get(), period] {
+        s->close_idle_clients();
+        return period;
+    });
     log_info("[tcp:%s] listening on %s", config.name.c_str(), to_string(bound->addr).c_str());
     return server;
 }
@@ -91,6 +112,12 @@ LinkCounters TcpServer::total_counters() const {
     for (const auto& c : clients_)
         total += c->counters();
     return total;
+}
+
+void TcpServer::set_marker_source(uint8_t sysid, uint8_t compid) {
+    Endpoint::set_marker_source(sysid, compid);
+    for (auto& c : clients_)
+        c->set_marker_source(sysid, compid);
 }
 
 void TcpServer::retune(const TxBudgetConfig& budget) {
@@ -115,20 +142,44 @@ void TcpServer::on_accept() {
                 log_warning("[tcp:%s] accept: %s", name().c_str(), errno_text(errno).c_str());
             return;
         }
-        if (clients_.size() >= kMaxClients) {
-            log_warning("[tcp:%s] %zu clients already: refusing %s", name().c_str(), kMaxClients,
-                        to_string(peer).c_str());
-            continue;  // fd closes here
+        // Refused (the fd closes here) past a cap: counted, and said once per report_interval
+        // with the count (a flood of connections must not flood the log).
+        const size_t per_address = config().options.number("max_clients_per_address");
+        if (clients_.size() >= kMaxClients ||
+            static_cast<size_t>(std::count_if(clients_.begin(), clients_.end(), [&](const auto& c) {
+                return same_host(c->peer(), peer);
+            })) >= per_address) {
+            stats_.clients_refused++;
+            continue;
         }
         set_nodelay(fd.get());
-        auto client = std::make_unique<TcpConnection>(*this, peer);
+        auto client = std::make_unique<TcpConnection>(*this, peer, loop_.now());
         if (auto r = client->start(std::move(fd)); !r) {
             log_warning("[tcp:%s] %s", name().c_str(), r.error().message.c_str());
             continue;
         }
         sink_.attach(*client);
-        log_info("[tcp:%s] client %s connected", name().c_str(), to_string(peer).c_str());
+        if (client_log_.allow(loop_.now()))
+            log_info("[tcp:%s] client %s connected%s", name().c_str(), to_string(peer).c_str(),
+                     client_log_.left_out_note().c_str());
         clients_.push_back(std::move(client));
+    }
+}
+
+void TcpServer::close_idle_clients() {
+    const TimePoint now = loop_.now();
+    const Duration idle = config().options.duration("idle_timeout");
+    for (auto& c : clients_) {
+        if (!c->ready())
+            continue;  // closing already
+        TimePoint since = std::max(c->connected_at(), c->last_valid());
+        if (now - since <= idle)
+            continue;
+        stats_.clients_idle_closed++;
+        char why[64];
+        snprintf(why, sizeof why, "no valid frame for %.1fs",
+                 std::chrono::duration<double>(now - since).count());
+        c->close(why);
     }
 }
 
@@ -255,6 +306,7 @@ void TcpClient::on_connecting(uint32_t) {
 }
 
 void TcpClient::retry_later(const std::string& reason) {
+    open_error_ = "cannot connect: " + reason;
     Duration delay = backoff_.next();
     // The address may have moved (dynamic DNS): the retry uses what a lookup gives by then.
     if (resolver_)

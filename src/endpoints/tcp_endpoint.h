@@ -1,5 +1,6 @@
-// TCP endpoints. A server accepts clients, each an endpoint (and route target) until it
-// disconnects. A client connects without blocking the loop and reconnects with backoff.
+// TCP endpoints. A server accepts clients (up to 32, max_clients_per_address from one address),
+// each an endpoint (and route target) until it disconnects or brings no valid frame for
+// idle_timeout. A client connects without blocking the loop and reconnects with backoff.
 #pragma once
 
 #include <netinet/in.h>
@@ -7,6 +8,7 @@
 #include <memory>
 #include <vector>
 
+#include "core/log_budget.h"
 #include "endpoints/net.h"
 #include "endpoints/stream_endpoint.h"
 
@@ -20,16 +22,22 @@ class TcpServer;
 /// One accepted client of a TcpServer.
 class TcpConnection : public StreamEndpoint {
 public:
-    TcpConnection(TcpServer& server, const SocketAddress& peer);
+    TcpConnection(TcpServer& server, const SocketAddress& peer, TimePoint now);
     ~TcpConnection() override;
     const char* kind() const override { return "tcp-conn"; }
     Result<void> start(UniqueFd fd) { return start_stream(std::move(fd)); }
+    const SocketAddress& peer() const { return peer_; }
+    TimePoint connected_at() const { return connected_at_; }
+    /// Closes the connection (the server forgets it after this round).
+    void close(const std::string& reason);
 
 protected:
     void on_disconnect(const std::string& reason) override;
 
 private:
     TcpServer& server_;
+    SocketAddress peer_;
+    TimePoint connected_at_;
 };
 
 class TcpServer : public Endpoint {
@@ -39,8 +47,13 @@ public:
     ~TcpServer() override;
     const char* kind() const override { return "tcp-server"; }
     LinkCounters total_counters() const override;
+    void for_each_link(const std::function<void(const Link&)>& f) const override {
+        for (const auto& c : clients_)
+            f(*c);
+    }
     void finish(TimePoint deadline) override;
     void retune(const TxBudgetConfig& budget) override;
+    void set_marker_source(uint8_t sysid, uint8_t compid) override;
 
 private:
     friend class TcpConnection;
@@ -49,14 +62,18 @@ private:
     void on_accept();
     /// Forgets a client after the current dispatch round (it may be inside its own handler).
     void drop_client(TcpConnection& client);
+    /// Closes the clients that brought no valid frame for idle_timeout.
+    void close_idle_clients();
 
     static constexpr size_t kMaxClients = 32;
     FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;
     EventLoop::Watch watch_;
+    EventLoop::Timer idle_timer_;
     std::vector<std::unique_ptr<TcpConnection>> clients_;
     LinkCounters retired_;
+    LogBudget client_log_{20, seconds(10)};  // clients connected and gone
 };
 
 class TcpClient : public StreamEndpoint {

@@ -13,6 +13,7 @@
 #include <filesystem>
 
 #include "core/log.h"
+#include "core/plural.h"
 #include "endpoints/net.h"
 #include "mavlink/frame.h"
 
@@ -184,9 +185,8 @@ void TlogWriter::close_file() {
     if (fsync(fd_.get()) < 0 && errno != EINVAL)
         log_warning("[tlog:%s] fsync %s: %s", name_.c_str(), path_.c_str(), errno_text(errno).c_str());
     fd_.reset();
-    log_info("[tlog:%s] closed %s (%llu frames, %llu bytes)", name_.c_str(), path_.c_str(),
-             static_cast<unsigned long long>(file_frames_),
-             static_cast<unsigned long long>(file_bytes_));
+    log_info("[tlog:%s] closed %s (%s, %s)", name_.c_str(), path_.c_str(),
+             plural(file_frames_, "frame").c_str(), plural(file_bytes_, "byte").c_str());
     file_bytes_ = 0;
     file_frames_ = 0;
 }

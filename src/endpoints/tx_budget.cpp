@@ -13,15 +13,14 @@ namespace {
 constexpr size_t kMaxSlots = 256;
 // When telemetry and bulk both wait, bulk gets this share of the budget.
 constexpr double kBulkShare = 0.25;
-constexpr size_t kRecordHeader = 2;  // a bulk record's u16 length
 
 }  // namespace
 
 TxBudget::TxBudget(uint64_t bytes_per_s, uint32_t overhead, const TxClassesConfig& classes,
                    size_t bulk_capacity, std::array<TxClassCounters, kTxClassCount>& counters)
     : rate_(bytes_per_s), overhead_(overhead), burst_(burst_for(bytes_per_s, overhead)),
-      classes_(classes), tokens_(burst_),
-      ring_(std::max(bulk_capacity, kMaxFrameLen + kRecordHeader)), counters_(counters) {
+      classes_(classes), tokens_(burst_), control_(bulk_capacity), bulk_(bulk_capacity),
+      counters_(counters) {
     slots_.reserve(32);
 }
 
@@ -55,6 +54,7 @@ void TxBudget::charge(TxClass c, size_t len, bool waited) {
     k.frames++;
     k.bytes += cost(len);
     k.waited += waited;
+    load_.waited += waited;
     tokens_ -= static_cast<double>(cost(len));
     double weighted = static_cast<double>(cost(len));
     if (c == TxClass::Telemetry)
@@ -104,13 +104,20 @@ TxBudget::Slot* TxBudget::slot_for(const Frame& frame) {
     return s;
 }
 
-bool TxBudget::offer(const Frame& frame, TimePoint now) {
+bool TxBudget::offer(const Frame& frame, TimePoint now, uint64_t ticket, uint8_t extra) {
     refill(now);
-    const size_t len = frame.bytes.size();
+    const size_t len = frame.bytes.size() + extra;  // what it takes on the line
     const TxClass c = classes_.class_of(frame.msgid);
+    load_.offered_frames++;
+    load_.offered_bytes += cost(len);
     if (c == TxClass::Control) {
-        charge(c, len, false);
-        return true;
+        // In order: nothing passes control that waits.
+        if (control_.empty() && tokens_ - static_cast<double>(cost(len)) >= -control_debt()) {
+            charge(c, len, false);
+            return true;
+        }
+        enqueue(control_, c, frame, now, ticket, extra);
+        return false;
     }
     // Nothing passes what waits for the budget (only what a cap holds may be passed).
     bool queue_ahead = pick(now, false).kind != Pick::None ||
@@ -120,12 +127,12 @@ bool TxBudget::offer(const Frame& frame, TimePoint now) {
             charge(c, len, false);
             return true;
         }
-        bulk_push(frame.bytes);
+        enqueue(bulk_, c, frame, now, ticket, extra);
         return false;
     }
     Slot* slot = slot_for(frame);
     if (!slot) {
-        counters_[static_cast<size_t>(c)].dropped++;
+        lose(c, &TxClassCounters::dropped);
         return false;
     }
     Slot& s = *slot;
@@ -135,45 +142,74 @@ bool TxBudget::offer(const Frame& frame, TimePoint now) {
         return true;
     }
     if (s.held) {
-        counters_[static_cast<size_t>(c)].thinned++;
+        lose(c, &TxClassCounters::thinned);
     } else {
         s.held = true;
         s.order = next_order_++;
         held_telemetry_++;
     }
-    std::memcpy(s.bytes.data(), frame.bytes.data(), len);
-    s.len = static_cast<uint16_t>(len);
+    std::memcpy(s.bytes.data(), frame.bytes.data(), frame.bytes.size());
+    s.len = static_cast<uint16_t>(frame.bytes.size());
+    s.extra = extra;
+    s.ticket = ticket;
     return false;
+}
+
+void TxBudget::enqueue(FrameRing& ring, TxClass c, const Frame& frame, TimePoint now,
+                       uint64_t ticket, uint8_t extra) {
+    while (!ring.fits(frame.bytes.size())) {
+        ring.pop(nullptr);
+        lose(c, &TxClassCounters::dropped);
+    }
+    if (&ring == &bulk_ && bulk_.empty())  // a class that starts to wait takes its turn from now
+        bulk_turn_ = std::max(bulk_turn_, telemetry_turn_);
+    ring.push(frame.bytes, now, ticket, extra);
+}
+
+void TxBudget::expire_control(TimePoint now) {
+    while (!control_.empty() && now - control_.front().at >= kControlMaxWait) {
+        control_.pop(nullptr);
+        lose(TxClass::Control, &TxClassCounters::dropped);
+    }
 }
 
 TxBudget::Pick TxBudget::pick(TimePoint now, bool affordable) const {
     Pick p;
-    // The telemetry that waited longest of what its cap lets go now; else when a cap opens.
-    const Slot* first = nullptr;
-    for (size_t i = 0; i < slots_.size() && held_telemetry_ != 0; i++) {
-        const Slot& s = slots_[i];
-        if (!s.held)
-            continue;
-        if (telemetry_ready(s, now)) {
-            if (!first || s.order < first->order) {
-                first = &s;
-                p.slot = i;
-            }
-        } else {
-            p.due = std::min(p.due, s.last_sent + s.cap);
-        }
-    }
     size_t len = 0;
-    if (first && (bulk_frames_ == 0 || telemetry_turn_ <= bulk_turn_)) {
-        p.kind = Pick::Telemetry;
-        len = first->len;
-    } else if (bulk_frames_ != 0) {
-        p.kind = Pick::Bulk;
-        len = bulk_front_len();
+    double allowed_debt = 0;
+    if (!control_.empty()) {
+        p.kind = Pick::Control;
+        const FrameRing::Record r = control_.front();
+        len = r.len + r.extra;
+        allowed_debt = control_debt();
+    } else {
+        // The telemetry that waited longest of what its cap lets go now; else when a cap opens.
+        const Slot* first = nullptr;
+        for (size_t i = 0; i < slots_.size() && held_telemetry_ != 0; i++) {
+            const Slot& s = slots_[i];
+            if (!s.held)
+                continue;
+            if (telemetry_ready(s, now)) {
+                if (!first || s.order < first->order) {
+                    first = &s;
+                    p.slot = i;
+                }
+            } else {
+                p.due = std::min(p.due, s.last_sent + s.cap);
+            }
+        }
+        if (first && (bulk_.empty() || telemetry_turn_ <= bulk_turn_)) {
+            p.kind = Pick::Telemetry;
+            len = first->len + first->extra;
+        } else if (!bulk_.empty()) {
+            p.kind = Pick::Bulk;
+            const FrameRing::Record r = bulk_.front();
+            len = r.len + r.extra;
+        }
     }
     if (p.kind == Pick::None || !affordable)
         return p;
-    double missing = static_cast<double>(cost(len)) - tokens_;
+    double missing = static_cast<double>(cost(len)) - allowed_debt - tokens_;
     if (missing > 0) {
         auto wait = Duration(static_cast<int64_t>(missing * 1e9 / static_cast<double>(rate_)) + 1);
         p.due = std::min(p.due, refilled_ + wait);
@@ -182,76 +218,30 @@ TxBudget::Pick TxBudget::pick(TimePoint now, bool affordable) const {
     return p;
 }
 
-std::span<const uint8_t> TxBudget::take(const Pick& p, TimePoint now) {
+TxBudget::Taken TxBudget::take(const Pick& p, TimePoint now) {
     if (p.kind == Pick::Telemetry) {
         Slot& s = slots_[p.slot];
         s.held = false;
         s.last_sent = now;
         held_telemetry_--;
-        charge(TxClass::Telemetry, s.len, true);
-        return {s.bytes.data(), s.len};
+        charge(TxClass::Telemetry, s.len + s.extra, true);
+        return {{s.bytes.data(), s.len}, s.ticket};
     }
-    size_t len = bulk_front_len();
-    bulk_pop(bulk_out_.data());
-    charge(TxClass::Bulk, len, true);
-    return {bulk_out_.data(), len};
+    FrameRing& ring = p.kind == Pick::Control ? control_ : bulk_;
+    const FrameRing::Record r = ring.front();
+    ring.pop(queued_out_.data());
+    charge(p.kind == Pick::Control ? TxClass::Control : TxClass::Bulk, r.len + r.extra, true);
+    return {{queued_out_.data(), r.len}, r.ticket};
 }
 
 uint64_t TxBudget::clear() {
-    uint64_t held = held_telemetry_ + bulk_frames_;
+    uint64_t held = held_telemetry_ + bulk_.frames() + control_.frames();
     for (Slot& s : slots_)
         s.held = false;
     held_telemetry_ = 0;
-    ring_head_ = ring_used_ = bulk_frames_ = 0;
+    bulk_.clear();
+    control_.clear();
     return held;
-}
-
-// --- the bulk queue ----------------------------------------------------------------------------
-
-void TxBudget::ring_read(size_t at, uint8_t* into, size_t n) const {
-    at %= ring_.size();
-    size_t first = std::min(n, ring_.size() - at);
-    std::memcpy(into, ring_.data() + at, first);
-    std::memcpy(into + first, ring_.data(), n - first);
-}
-
-void TxBudget::ring_write(size_t at, const uint8_t* from, size_t n) {
-    at %= ring_.size();
-    size_t first = std::min(n, ring_.size() - at);
-    std::memcpy(ring_.data() + at, from, first);
-    std::memcpy(ring_.data(), from + first, n - first);
-}
-
-size_t TxBudget::bulk_front_len() const {
-    uint8_t h[kRecordHeader];
-    ring_read(ring_head_, h, kRecordHeader);
-    return static_cast<size_t>(h[0]) | static_cast<size_t>(h[1]) << 8;
-}
-
-void TxBudget::bulk_pop(uint8_t* into) {
-    size_t len = bulk_front_len();
-    if (into)
-        ring_read(ring_head_ + kRecordHeader, into, len);
-    ring_head_ = (ring_head_ + kRecordHeader + len) % ring_.size();
-    ring_used_ -= kRecordHeader + len;
-    bulk_frames_--;
-}
-
-void TxBudget::bulk_push(std::span<const uint8_t> frame) {
-    const size_t need = kRecordHeader + frame.size();
-    while (ring_.size() - ring_used_ < need) {
-        bulk_pop(nullptr);
-        counters_[static_cast<size_t>(TxClass::Bulk)].dropped++;
-    }
-    if (bulk_frames_ == 0)  // a class that starts to wait takes its turn from now, not before
-        bulk_turn_ = std::max(bulk_turn_, telemetry_turn_);
-    uint8_t h[kRecordHeader] = {static_cast<uint8_t>(frame.size()),
-                                static_cast<uint8_t>(frame.size() >> 8)};
-    size_t tail = ring_head_ + ring_used_;
-    ring_write(tail, h, kRecordHeader);
-    ring_write(tail + kRecordHeader, frame.data(), frame.size());
-    ring_used_ += need;
-    bulk_frames_++;
 }
 
 }  // namespace mavbond

@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "mavlink/frame.h"
+#include "routing/link_account.h"
 
 namespace mavbond {
 namespace {
@@ -24,6 +25,28 @@ TxQueue::TxQueue(Mode mode, size_t capacity_bytes)
     lent_.reserve(kMaxLent);
     backlog_.resize(2 * capacity_);
     scratch_.reserve(std::max<size_t>(kMaxLent + 64, IOV_MAX));
+}
+
+bool TxQueue::put_marker(MarkerWriter writer, void* ctx) {
+    if (marker_ != MarkerState::None)
+        return false;
+    marker_ = MarkerState::Waiting;
+    marker_writer_ = writer;
+    marker_ctx_ = ctx;
+    return true;
+}
+
+iovec TxQueue::stamp_marker(uint64_t ahead) {
+    if (marker_ == MarkerState::Waiting)
+        marker_len_ = marker_writer_(marker_ctx_, marker_bytes_, frames_written_ + ahead);
+    return iovec{marker_bytes_.data() + marker_done_, marker_len_ - marker_done_};
+}
+
+void TxQueue::written(const void* frame, size_t len, WriteResult& result) {
+    result.frames_sent++;
+    result.bytes_sent += len;
+    if (!is_radio_own_report(static_cast<const uint8_t*>(frame)))
+        frames_written_++;
 }
 
 bool TxQueue::lend(std::span<const uint8_t> frame) {
@@ -99,7 +122,21 @@ void TxQueue::collect_backlog_iov(std::vector<iovec>& out, size_t max) const {
 TxQueue::WriteResult TxQueue::write_datagrams(DatagramWriter writer, void* ctx) {
     WriteResult result;
     bool blocked = false;
-    while (has_backlog() && !blocked) {
+    if (marker_ == MarkerState::Waiting) {
+        // Ahead of everything: one datagram of its own, counting every one sent before it.
+        iovec marker = stamp_marker(0);
+        int n = writer(ctx, &marker, 1);
+        if (n == 1) {
+            written(marker.iov_base, marker.iov_len, result);
+            marker_ = MarkerState::None;
+        } else if (n < 0 && !would_block(-n)) {
+            result.error = -n;
+            marker_ = MarkerState::None;  // not a routed frame: not counted as dropped
+        } else {
+            blocked = true;  // it waits for the kernel, and so does everything behind it
+        }
+    }
+    while (backlog_frames_ != 0 && !blocked) {
         scratch_.clear();
         collect_backlog_iov(scratch_, kWriteBatch);
         int n = writer(ctx, scratch_.data(), scratch_.size());
@@ -114,10 +151,10 @@ TxQueue::WriteResult TxQueue::write_datagrams(DatagramWriter writer, void* ctx) 
             continue;
         }
         for (int i = 0; i < n; i++) {
-            result.bytes_sent += scratch_[static_cast<size_t>(i)].iov_len;
+            const iovec& f = scratch_[static_cast<size_t>(i)];
+            written(f.iov_base, f.iov_len, result);
             pop_backlog_front();
         }
-        result.frames_sent += static_cast<uint64_t>(n);
         blocked = n == 0;
     }
     size_t next = 0;
@@ -135,8 +172,7 @@ TxQueue::WriteResult TxQueue::write_datagrams(DatagramWriter writer, void* ctx) 
             continue;
         }
         for (size_t i = next; i < next + static_cast<size_t>(n); i++)
-            result.bytes_sent += lent_[i].iov_len;
-        result.frames_sent += static_cast<uint64_t>(n);
+            written(lent_[i].iov_base, lent_[i].iov_len, result);
         next += static_cast<size_t>(n);
         blocked = n == 0;
     }
@@ -149,10 +185,28 @@ TxQueue::WriteResult TxQueue::write_datagrams(DatagramWriter writer, void* ctx) 
 TxQueue::WriteResult TxQueue::write_stream(StreamWriter writer, void* ctx) {
     WriteResult result;
     size_t next_lent = 0;
-    while (has_backlog() || next_lent < lent_.size()) {
+    constexpr size_t kNone = SIZE_MAX;
+    while (backlog_frames_ != 0 || next_lent < lent_.size() || marker_ != MarkerState::None) {
+        // The iovecs in wire order: a marker partly written first; else the backlog (its head
+        // perhaps partly written), a waiting marker right after that head frame; the lent.
         scratch_.clear();
-        collect_backlog_iov(scratch_, IOV_MAX);
-        size_t from_backlog = scratch_.size();
+        size_t marker_at = kNone;
+        if (marker_ == MarkerState::Started) {
+            marker_at = 0;
+            scratch_.push_back(stamp_marker(0));
+        }
+        collect_backlog_iov(scratch_, IOV_MAX - 1);
+        if (marker_ == MarkerState::Waiting) {
+            const bool head_started = head_written_ != 0;
+            uint64_t ahead = 0;
+            if (head_started) {
+                const uint8_t* head = backlog_.data() + head_ + kRecordHeader;
+                ahead = is_radio_own_report(head) ? 0 : 1;
+            }
+            marker_at = head_started ? 1 : 0;
+            scratch_.insert(scratch_.begin() + static_cast<ptrdiff_t>(marker_at), stamp_marker(ahead));
+        }
+        const size_t lent_from = scratch_.size();
         for (size_t i = next_lent; i < lent_.size() && scratch_.size() < IOV_MAX; i++)
             scratch_.push_back(lent_[i]);
         ssize_t n = writer(ctx, scratch_.data(), scratch_.size());
@@ -161,41 +215,55 @@ TxQueue::WriteResult TxQueue::write_stream(StreamWriter writer, void* ctx) {
                 result.error = static_cast<int>(-n);
             break;
         }
-        result.bytes_sent += static_cast<uint64_t>(n);
-        auto written = static_cast<size_t>(n);
-        // Consume whole backlog records, then lent frames; a frame cut short stays (or goes)
-        // at the head of the backlog so the line never carries half a frame followed by another.
-        for (size_t i = 0; i < from_backlog; i++) {
-            size_t len = scratch_[i].iov_len;
-            if (written >= len) {
-                written -= len;
-                pop_backlog_front();
-                result.frames_sent++;
-            } else {
-                head_written_ += written;
-                written = 0;
-                break;
-            }
-        }
+        auto left = static_cast<size_t>(n);
+        // Consume in wire order: what the kernel took whole goes; a frame cut short stays (or
+        // goes) at the head of the backlog, the marker in its own place, so the line never
+        // carries half a frame followed by another.
         bool short_write = false;
-        for (size_t i = from_backlog; i < scratch_.size(); i++) {
-            size_t len = scratch_[i].iov_len;
-            if (written >= len) {
-                written -= len;
-                next_lent++;
-                result.frames_sent++;
-            } else {
-                if (written > 0) {
-                    push_backlog({static_cast<const uint8_t*>(scratch_[i].iov_base), len}, result);
-                    head_written_ = written;
-                    next_lent++;
-                    written = 0;
+        for (size_t i = 0; i < scratch_.size() && !short_write; i++) {
+            const size_t len = scratch_[i].iov_len;
+            const bool whole = left >= len;
+            const size_t took = whole ? len : left;
+            left -= took;
+            if (i == marker_at) {
+                if (whole) {
+                    written(marker_bytes_.data(), marker_len_, result);
+                    result.bytes_sent -= marker_done_;  // counted when that part went
+                    marker_ = MarkerState::None;
+                    marker_done_ = 0;
+                } else {
+                    result.bytes_sent += took;
+                    marker_done_ += took;
+                    if (took != 0)
+                        marker_ = MarkerState::Started;
+                    short_write = true;
                 }
-                short_write = true;
-                break;
+            } else if (i < lent_from) {  // a backlog record
+                if (whole) {
+                    const uint8_t* record = backlog_.data() + head_ + kRecordHeader;
+                    written(record, len, result);
+                    pop_backlog_front();
+                } else {
+                    result.bytes_sent += took;
+                    head_written_ += took;
+                    short_write = true;
+                }
+            } else {  // a lent frame
+                if (whole) {
+                    written(scratch_[i].iov_base, len, result);
+                    next_lent++;
+                } else {
+                    if (took > 0) {
+                        push_backlog({static_cast<const uint8_t*>(scratch_[i].iov_base), len}, result);
+                        result.bytes_sent += took;
+                        head_written_ = took;
+                        next_lent++;
+                    }
+                    short_write = true;
+                }
             }
         }
-        if (short_write || has_backlog())
+        if (short_write || backlog_frames_ != 0)
             break;  // the kernel took less than offered: it is full for now
     }
     if (result.error == 0) {
@@ -212,6 +280,8 @@ uint64_t TxQueue::clear() {
     uint64_t dropped = backlog_frames_ + lent_.size();
     lent_.clear();
     head_ = tail_ = head_written_ = backlog_frames_ = 0;
+    marker_ = MarkerState::None;
+    marker_done_ = 0;
     return dropped;
 }
 

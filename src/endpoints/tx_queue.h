@@ -2,14 +2,22 @@
 // the receive buffer they arrived in) and written at the end of the receive batch. Only what
 // the kernel will not take right now is copied into the backlog, which is bounded: when it is
 // full the oldest whole frames are dropped (fresh telemetry beats stale) and counted.
+//
+// A link's count marker (routing/link_account.h) waits here too, apart: it goes ahead of
+// everything not yet begun on the wire (after a frame half written), and its bytes are written
+// right before each write that may carry it, with the number of frames written whole before
+// it then, so it counts exactly what went on the wire ahead of it.
 #pragma once
 
 #include <sys/uio.h>
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <span>
 #include <vector>
+
+#include "mavlink/frame.h"
 
 namespace mavbond {
 
@@ -23,10 +31,23 @@ public:
     bool lend(std::span<const uint8_t> frame);
     Mode mode() const { return mode_; }
     bool has_lent() const { return !lent_.empty(); }
-    bool has_backlog() const { return backlog_frames_ != 0; }
+    /// Something the kernel did not take yet waits (EPOLLOUT is wanted): frames, or a marker.
+    bool has_backlog() const { return backlog_frames_ != 0 || marker_ != MarkerState::None; }
     bool empty() const { return !has_lent() && !has_backlog(); }
-    /// Stream mode: the head frame is partly written (the line stops mid-frame for now).
-    bool mid_frame() const { return head_written_ != 0; }
+    /// Stream mode: the head frame (or the marker) is partly written (the line stops mid-frame
+    /// for now).
+    bool mid_frame() const { return head_written_ != 0 || marker_ == MarkerState::Started; }
+
+    /// Writes a count marker into `out` (kMaxFrameLen bytes) for `frames_before` frames written
+    /// whole before it; returns its length, the same at every call for one marker.
+    using MarkerWriter = size_t (*)(void* ctx, std::span<uint8_t> out, uint64_t frames_before);
+    /// Puts a marker ahead of everything not yet begun on the wire; `writer` writes its bytes
+    /// before each write that may carry it. False when one waits already.
+    bool put_marker(MarkerWriter writer, void* ctx);
+    bool marker_waiting() const { return marker_ != MarkerState::None; }
+    /// Frames written whole since the queue was made: markers included, a radio's own reports
+    /// not (neither side of a link counts those: routing/link_account.h).
+    uint64_t frames_written() const { return frames_written_; }
 
     struct WriteResult {
         uint64_t frames_sent = 0;
@@ -47,10 +68,17 @@ public:
     WriteResult write_datagrams(DatagramWriter writer, void* ctx);
     WriteResult write_stream(StreamWriter writer, void* ctx);
 
-    /// Drops everything queued (a reconnect starts at a frame boundary); returns the count.
+    /// Drops everything queued (a reconnect starts at a frame boundary), a waiting marker too;
+    /// returns the count of frames.
     uint64_t clear();
 
 private:
+    enum class MarkerState { None, Waiting, Started };  // Started: partly written (a stream)
+    /// The marker's bytes, for the frames written whole so far and `ahead` more.
+    iovec stamp_marker(uint64_t ahead);
+    /// A frame written whole (its first bytes at `frame`).
+    void written(const void* frame, size_t len, WriteResult& result);
+
     // Backlog records: [u16 length][frame bytes], contiguous, compacted lazily.
     void push_backlog(std::span<const uint8_t> frame, WriteResult& result);
     void pop_backlog_front();
@@ -68,6 +96,13 @@ private:
     size_t head_written_ = 0;  // stream mode: bytes of the first record already written
     size_t backlog_frames_ = 0;
     std::vector<iovec> scratch_;  // reused for each write, never shrinks
+    uint64_t frames_written_ = 0;
+    MarkerState marker_ = MarkerState::None;
+    MarkerWriter marker_writer_ = nullptr;
+    void* marker_ctx_ = nullptr;
+    size_t marker_len_ = 0;
+    size_t marker_done_ = 0;  // Started: bytes of it written
+    std::array<uint8_t, kMaxFrameLen> marker_bytes_{};
 };
 
 }  // namespace mavbond

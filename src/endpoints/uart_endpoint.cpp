@@ -35,8 +35,18 @@ const EndpointSchema kUartType = {"uart", nullptr,
 
 Result<UniqueFd> open_serial(const std::string& device, uint32_t baud, bool flow_control) {
     UniqueFd fd(::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC));
-    if (!fd)
-        return make_error("cannot open " + device + ": " + errno_text(errno));
+    if (!fd) {
+        const int err = errno;
+        // What to do about the two usual ones.
+        const char* hint =
+            err == EACCES || err == EPERM
+                ? " (the daemon's user needs read and write on it: Debian gives serial devices to "
+                  "group dialout; the service runs with SupplementaryGroups=dialout; by hand: "
+                  "sudo adduser $USER dialout, then log in again)"
+            : err == ENOENT ? " (not plugged in, or another name: ls /dev/serial/by-id/)"
+                            : "";
+        return make_error("cannot open " + device + ": " + errno_text(err) + hint);
+    }
     termios2 tio{};
     if (ioctl(fd.get(), TCGETS2, &tio) < 0)
         return make_error(device + " is not a serial port: " + errno_text(errno));
@@ -91,11 +101,13 @@ void UartEndpoint::try_open() {
     }
     backoff_.reset();
     failing_logged_ = false;
+    open_error_.clear();
     log_notice("[uart:%s] %s open at %u baud%s", name().c_str(), o.text("device").c_str(),
                static_cast<unsigned>(o.number("baud")), o.flag("flow_control") ? " with RTS/CTS" : "");
 }
 
 void UartEndpoint::retry_later(const std::string& reason) {
+    open_error_ = reason;
     if (!failing_logged_) {
         log_warning("[uart:%s] %s; retrying with backoff up to %.1fs", name().c_str(),
                     reason.c_str(), std::chrono::duration<double>(backoff_.max()).count());

@@ -27,9 +27,12 @@ constexpr EndpointOption kRxBuffer = {
 constexpr EndpointOption kUdpServerOptions[] = {
     {"address", OptionKind::Address, nullptr,
      "Where to listen (0.0.0.0:14550, 127.0.0.1:14550, [::]:14550 for IPv6 and IPv4, "
-     "[::1]:14550). A peer that goes on from a new address (a NAT rebinding) takes the old "
-     "one's place at once.", true},
-    {"peer_timeout", OptionKind::Time, "30s", "A peer silent this long is forgotten."},
+     "[::1]:14550). A sender becomes a peer with its first frame that passes the checks (its "
+     "CRC; with signing, its signature). A peer that goes on from a new address (a NAT "
+     "rebinding) takes the old one's place: at once with signing, else once the old address "
+     "stayed silent for 2 s while the new one carried the stream on (see ADDRESSES).", true},
+    {"peer_timeout", OptionKind::Time, "30s",
+     "A peer that sends no valid frame this long is forgotten."},
     kRxBuffer,
 };
 
@@ -48,8 +51,9 @@ constexpr EndpointOption kUdpClientOptions[] = {
 
 const EndpointSchema kUdpServerType = {"udp", "server",
                                        "A UDP socket bound to an address. Peers are learned from "
-                                       "what they send; each is a link of its own.",
-                                       kUdpServerOptions};
+                                       "the valid frames they send (64 at most, the least "
+                                       "recently heard making room); each is a link of its own.",
+                                       kUdpServerOptions, true, nullptr, true};
 const EndpointSchema kUdpClientType = {"udp", "client", "A UDP socket sending to one address.",
                                        kUdpClientOptions, true, reconnect_bounds};
 
@@ -127,10 +131,10 @@ int send_datagrams(int fd, const iovec* frames, size_t count, const SocketAddres
 
 // --- UdpPeer -------------------------------------------------------------------------------
 
-UdpPeer::UdpPeer(UdpServer& server, const SocketAddress& addr, TimePoint now)
+UdpPeer::UdpPeer(UdpServer& server, const SocketAddress& addr)
     : Endpoint(server.config(), server.name() + "@" + to_string(addr), server.loop(),
                TxQueue::Mode::Datagram, &server),
-      server_(server), addr_(addr), last_heard_(now) {}
+      server_(server), addr_(addr) {}
 
 int UdpPeer::write_datagrams(const iovec* frames, size_t count) {
     return send_datagrams(server_.fd(), frames, count, &addr_);
@@ -138,12 +142,20 @@ int UdpPeer::write_datagrams(const iovec* frames, size_t count) {
 
 void UdpPeer::on_backlog(bool) { server_.update_write_interest(); }
 
+Endpoint::FrameOrigin UdpPeer::receive_first(ReceivedBatch& batch, const Frame& judged,
+                                             const SignedId& id, const FrameOrigin& origin,
+                                             DatagramParser& rest, const ParserCounters& parsed,
+                                             TimePoint arrival) {
+    let_in(batch, judged, arrival, id);
+    FrameOrigin last = receive_frames(batch, rest, arrival, origin);
+    stats_.rx += parsed;
+    return last;
+}
+
 void UdpPeer::heard_from(const FrameOrigin& origin) {
-    if (!origin.known)
-        return;
     for (FrameOrigin& o : recent_) {
         if (o.known && o.sysid == origin.sysid && o.compid == origin.compid) {
-            o.seq = origin.seq;
+            o = origin;
             return;
         }
     }
@@ -197,6 +209,12 @@ LinkCounters UdpServer::total_counters() const {
     return total;
 }
 
+void UdpServer::set_marker_source(uint8_t sysid, uint8_t compid) {
+    Endpoint::set_marker_source(sysid, compid);
+    for (auto& peer : peers_)
+        peer->set_marker_source(sysid, compid);
+}
+
 void UdpServer::retune(const TxBudgetConfig& budget) {
     Endpoint::retune(budget);
     for (auto& peer : peers_)
@@ -208,50 +226,148 @@ void UdpServer::finish(TimePoint deadline) {
         peer->finish(deadline);
 }
 
-UdpPeer* UdpServer::peer_for(const SocketAddress& addr, TimePoint now, bool& is_new) {
-    is_new = false;
-    // Datagrams come in runs from one peer: the last one found is tried first.
-    if (last_peer_ && same_address(last_peer_->address(), addr))
-        return last_peer_;
+UdpPeer* UdpServer::search_peer(const SocketAddress& addr) {
     for (auto& peer : peers_) {
-        if (same_address(peer->address(), addr))
+        if (!peer->retiring() && same_address(peer->address(), addr))
             return last_peer_ = peer.get();
     }
-    if (peers_.size() >= kMaxPeers) {
-        if (refused_peers_++ == 0)
-            log_warning("[udp:%s] %zu peers already: ignoring new peer %s", name().c_str(),
-                        kMaxPeers, to_string(addr).c_str());
-        return nullptr;
-    }
-    peers_.push_back(std::make_unique<UdpPeer>(*this, addr, now));
-    is_new = true;
-    last_peer_ = peers_.back().get();
-    sink_.attach(*peers_.back());
-    log_info("[udp:%s] new peer %s", name().c_str(), to_string(addr).c_str());
-    return peers_.back().get();
+    return nullptr;
 }
 
-UdpPeer* UdpServer::rebound_from(const UdpPeer& fresh) const {
+void UdpServer::take_stranger(size_t i) {
+    const TimePoint arrival = datagrams_.arrival(i);
+    ParserCounters parsed;
+    DatagramParser parser(datagrams_.data(i), policy_, parsed);
+    Frame frame;
+    while (parser.next(frame)) {
+        Frame judged = frame;
+        SignedId id;
+        Received how = judge(judged, id);  // a signature refused is counted here
+        if (!valid(how))
+            continue;
+        const FrameOrigin origin = origin_of(frame, how, id);
+        UdpPeer& peer = learn_peer(datagrams_.from(i), arrival);
+        FrameOrigin last = peer.receive_first(frames_, judged, id, origin, parser, parsed, arrival);
+        peer.heard_from(last);
+        check_rebinding(peer, origin, arrival);
+        return;
+    }
+    // Noise, an empty datagram, frames signing refused: its sender stays a stranger, sent
+    // nothing and given no place.
+    stats_.rx += parsed;
+    stats_.stranger_datagrams++;
+}
+
+UdpPeer& UdpServer::learn_peer(const SocketAddress& addr, TimePoint now) {
+    auto live = [](const auto& p) { return !p->retiring(); };
+    if (static_cast<size_t>(std::count_if(peers_.begin(), peers_.end(), live)) >= kMaxPeers) {
+        // The table is full: whoever sent a valid frame least recently makes room. A vehicle
+        // that comes back is never refused; with signing, strangers never take a place.
+        UdpPeer* oldest = nullptr;
+        for (auto& p : peers_) {
+            if (live(p) && (!oldest || p->last_valid() < oldest->last_valid()))
+                oldest = p.get();
+        }
+        stats_.peers_evicted++;
+        if (peer_log_.allow(now))
+            log_info("[udp:%s] %zu peers: %s (its last valid frame %.1fs ago) makes room for %s%s",
+                     name().c_str(), kMaxPeers, to_string(oldest->address()).c_str(),
+                     std::chrono::duration<double>(now - oldest->last_valid()).count(),
+                     to_string(addr).c_str(), peer_log_.left_out_note().c_str());
+        retire(*oldest);
+    }
+    peers_.push_back(std::make_unique<UdpPeer>(*this, addr));
+    UdpPeer& peer = *peers_.back();
+    last_peer_ = &peer;
+    sink_.attach(peer);
+    if (peer_log_.allow(now))
+        log_info("[udp:%s] new peer %s%s", name().c_str(), to_string(addr).c_str(),
+                 peer_log_.left_out_note().c_str());
+    return peer;
+}
+
+void UdpServer::check_rebinding(UdpPeer& fresh, const FrameOrigin& first, TimePoint now) {
+    const Duration peer_timeout = config().options.duration("peer_timeout");
+    for (const Rebinding& r : rebindings_) {
+        if (r.at != TimePoint{} && now - r.at <= peer_timeout &&
+            same_address(r.from, fresh.address())) {
+            // The address a rebinding left sends again: it was alive, a second path of one
+            // system (two modems), not a NAT rebinding. Both stay; rebindings wait a while.
+            rebinding_paused_until_ = now + peer_timeout;
+            log_warning("[udp:%s] peer %s sends again after it was taken as rebound: two live "
+                        "paths of one system, not a NAT rebinding; rebinding detection paused for "
+                        "%.0fs", name().c_str(), to_string(fresh.address()).c_str(),
+                        std::chrono::duration<double>(peer_timeout).count());
+            return;
+        }
+    }
+    if (now < rebinding_paused_until_)
+        return;
+    UdpPeer* old = continued_stream(fresh, first);
+    if (!old)
+        return;
+    if (first.verified) {
+        rebind(*old, fresh, now);  // only the key's holder can carry a signed stream on
+        return;
+    }
+    fresh.start_succession({old->address(), now, 1, first.sysid, first.compid});
+}
+
+UdpPeer* UdpServer::continued_stream(const UdpPeer& fresh, const FrameOrigin& first) const {
     // A NAT rebinding moves one sender to a new source address mid-stream: its next frames
     // carry on its sequence. Frames lost in flight leave a gap; a window of 64 takes a burst
-    // of those, and two senders of one system and component (a misconfiguration) rarely
-    // line up within it.
+    // of those. A signed stream is its own proof: the shared verifier took the frame as newer
+    // than every frame of its stream, from any address.
     constexpr unsigned kSeqWindow = 64;
-    const FrameOrigin& now = fresh.recent_origins()[0];  // what its first datagram ended with
-    if (!now.known)
-        return nullptr;
     for (const auto& peer : peers_) {
-        if (peer.get() == &fresh || peer->rebound())
+        if (peer.get() == &fresh || peer->retiring())
             continue;
         for (const FrameOrigin& was : peer->recent_origins()) {
-            if (!was.known || was.sysid != now.sysid || was.compid != now.compid)
+            if (!was.known || was.sysid != first.sysid || was.compid != first.compid ||
+                was.verified != first.verified)
                 continue;
-            unsigned ahead = static_cast<uint8_t>(now.seq - was.seq);
-            if (ahead >= 1 && ahead <= kSeqWindow)
+            if (first.verified ? was.link_id == first.link_id
+                               : static_cast<uint8_t>(first.seq - was.seq) - 1u < kSeqWindow)
                 return peer.get();
         }
     }
     return nullptr;
+}
+
+void UdpServer::judge_succession(UdpPeer& peer, const FrameOrigin& origin, TimePoint now) {
+    UdpPeer::Succession& s = *peer.succession();
+    UdpPeer* old = find_peer(s.of);
+    // The old address spoke since the newcomer's first frame: the newcomer is another sender
+    // (a second path, or a stranger guessing the sequence), a peer like any other. Or the old
+    // peer is gone already.
+    if (!old || old->last_valid() >= s.since) {
+        peer.end_succession();
+        return;
+    }
+    if (origin.sysid == s.sysid && origin.compid == s.compid)
+        s.datagrams++;
+    if (s.datagrams >= kSuccessionDatagrams && now - s.since >= kSuccessionQuiet)
+        rebind(*old, peer, now);
+}
+
+void UdpServer::rebind(UdpPeer& old, UdpPeer& fresh, TimePoint now) {
+    if (peer_log_.allow(now))
+        log_notice("[udp:%s] peer %s now at %s (a NAT rebinding): the old address is forgotten%s",
+                   name().c_str(), to_string(old.address()).c_str(),
+                   to_string(fresh.address()).c_str(), peer_log_.left_out_note().c_str());
+    stats_.peer_rebinds++;
+    fresh.account().continue_from(old.account());  // one link: its count goes on
+    rebindings_[next_rebinding_] = {old.address(), now};
+    next_rebinding_ = (next_rebinding_ + 1) % rebindings_.size();
+    fresh.end_succession();
+    retire(old);  // nothing more goes to the old address, from this round on
+}
+
+void UdpServer::retire(UdpPeer& peer) {
+    peer.retire();
+    if (last_peer_ == &peer)
+        last_peer_ = nullptr;
+    defer(loop_, [this] { forget_retired(); });
 }
 
 void UdpServer::forget(UdpPeer& peer, TimePoint now) {
@@ -267,15 +383,26 @@ void UdpServer::forget(UdpPeer& peer, TimePoint now) {
     peers_.erase(it);
 }
 
+void UdpServer::forget_retired() {
+    TimePoint now = loop_.now();
+    for (size_t i = peers_.size(); i-- > 0;) {
+        if (peers_[i]->retiring())
+            forget(*peers_[i], now);
+    }
+    update_write_interest();
+}
+
 void UdpServer::forget_silent_peers() {
     TimePoint now = loop_.now();
     for (size_t i = peers_.size(); i-- > 0;) {
         UdpPeer& peer = *peers_[i];
-        if (now - peer.last_heard() <= config().options.duration("peer_timeout"))
+        if (now - peer.last_valid() <= config().options.duration("peer_timeout"))
             continue;
-        log_info("[udp:%s] peer %s silent for %.1fs: forgotten", name().c_str(),
-                 to_string(peer.address()).c_str(),
-                 std::chrono::duration<double>(now - peer.last_heard()).count());
+        if (peer_log_.allow(now))
+            log_info("[udp:%s] peer %s silent for %.1fs: forgotten%s", name().c_str(),
+                     to_string(peer.address()).c_str(),
+                     std::chrono::duration<double>(now - peer.last_valid()).count(),
+                     peer_log_.left_out_note().c_str());
         forget(peer, now);
     }
     update_write_interest();
@@ -304,38 +431,18 @@ void UdpServer::on_events(uint32_t events) {
     input_.read(datagrams_.read_until(), events & EPOLLIN ? datagrams_.first_arrival() : TimePoint{});
     for (int i = 0; i < n; i++) {
         auto idx = static_cast<size_t>(i);
-        TimePoint arrival = datagrams_.arrival(idx);
-        bool is_new = false;
-        UdpPeer* peer = peer_for(datagrams_.from(idx), arrival, is_new);
+        UdpPeer* peer = find_peer(datagrams_.from(idx));
         if (!peer) {
-            stats_.rx.garbage_bytes += datagrams_.data(idx).size();
+            take_stranger(idx);
             continue;
         }
-        peer->heard(arrival);
-        peer->heard_from(peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_));
-        if (is_new && detect_rebinding_) {
-            if (std::any_of(rebound_from_.begin(), rebound_from_.end(),
-                            [&](const SocketAddress& a) { return same_address(a, peer->address()); })) {
-                log_warning("[udp:%s] peer %s sends again after it was taken as rebound: two live "
-                            "paths of one system, not a NAT rebinding; rebinding detection is off "
-                            "for this endpoint", name().c_str(), to_string(peer->address()).c_str());
-                detect_rebinding_ = false;
-            } else if (UdpPeer* old = rebound_from(*peer)) {
-                log_notice("[udp:%s] peer %s now at %s (a NAT rebinding): the old address is "
-                           "forgotten", name().c_str(), to_string(old->address()).c_str(),
-                           to_string(peer->address()).c_str());
-                stats_.peer_rebinds++;
-                rebound_from_[next_rebound_] = old->address();
-                next_rebound_ = (next_rebound_ + 1) % rebound_from_.size();
-                // Nothing more goes to the old address, from this round on. It is forgotten
-                // once the round has routed what it received (a bond may hold its frames).
-                old->mark_rebound();
-                defer(loop_, [this, old] {
-                    forget(*old, loop_.now());
-                    update_write_interest();
-                });
-            }
-        }
+        TimePoint arrival = datagrams_.arrival(idx);
+        FrameOrigin origin = peer->receive_datagram(frames_, datagrams_.data(idx), arrival, policy_);
+        if (!origin.known)
+            continue;
+        peer->heard_from(origin);
+        if (peer->succession())
+            judge_succession(*peer, origin, arrival);
     }
     // The frames stay lent in datagrams_ until the round ends (its next read is in a later
     // round): no end_batch() here, the round's end sends what they gave the links.
@@ -413,6 +520,7 @@ void UdpClient::on_resolved(Result<SocketAddress> result) {
     const std::string& host = resolver_->host();
     if (!result) {
         stats_.resolve_failures++;
+        open_error_ = result.error().message;
         Duration delay = backoff_.next();
         // One line per state change, not one per attempt.
         if (!failing_logged_) {

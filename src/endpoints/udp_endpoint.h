@@ -1,6 +1,8 @@
-// UDP endpoints. A server binds an address and learns its peers from what they send: each
-// peer is a route target of its own, forgotten after peer_timeout of silence. A client sends
-// to a fixed address and accepts replies from it only (a connected socket).
+// UDP endpoints. A server binds an address and learns its peers from what they send: a
+// sender becomes a peer with its first frame that passes the server's checks (a datagram
+// alone makes nobody a peer); each peer is a route target of its own, forgotten after
+// peer_timeout without a valid frame. A client sends to a fixed address and accepts replies
+// from it only (a connected socket).
 #pragma once
 
 #include <sys/socket.h>
@@ -8,10 +10,12 @@
 
 #include <array>
 #include <memory>
+#include <optional>
 #include <utility>
 #include <vector>
 
 #include "core/event_loop.h"
+#include "core/log_budget.h"
 #include "endpoints/endpoint.h"
 #include "endpoints/net.h"
 #include "endpoints/stream_endpoint.h"
@@ -63,23 +67,47 @@ private:
 
 class UdpServer;
 
+/// A sender a UDP server learned: from its first datagram that brought a frame passing the
+/// server's checks (never from a datagram alone).
 class UdpPeer : public Endpoint {
 public:
-    UdpPeer(UdpServer& server, const SocketAddress& addr, TimePoint now);
+    UdpPeer(UdpServer& server, const SocketAddress& addr);
     const char* kind() const override { return "udp-peer"; }
-    /// Not once its sender went on from another address (what is routed to it is dropped,
-    /// counted, until it is forgotten at the round's end).
-    bool ready() const override { return !rebound_; }
-    void mark_rebound() { rebound_ = true; }
-    bool rebound() const { return rebound_; }
+    /// Not once it retires (its sender went on from another address, or it made room for a
+    /// newcomer): what is routed to it is dropped, counted, until it is forgotten at the
+    /// round's end.
+    bool ready() const override { return !retiring_; }
+    void retire() { retiring_ = true; }
+    bool retiring() const { return retiring_; }
     const SocketAddress& address() const { return addr_; }
-    TimePoint last_heard() const { return last_heard_; }
-    void heard(TimePoint now) { last_heard_ = now; }
-    /// The last frame of each of the last few components it carried (a vehicle's autopilot,
-    /// camera, ...): what a rebinding is recognised by.
+
+    /// Its first datagram, which the server judged up to `first` (a frame judge() let in,
+    /// `judged` as judge() left it, `origin` the frame's: a signature is checked once, never
+    /// twice): `first`, then what `rest` still yields, as any of its datagrams. The
+    /// datagram's parser counters (`parsed`, which `rest` counts into) become its own.
+    /// Returns the origin of its last valid frame.
+    FrameOrigin receive_first(ReceivedBatch& batch, const Frame& judged, const SignedId& id,
+                              const FrameOrigin& origin, DatagramParser& rest,
+                              const ParserCounters& parsed, TimePoint arrival);
+
+    /// The last valid frame of each of the last few components it carried (a vehicle's
+    /// autopilot, camera, ...): what a rebinding is recognised by.
     static constexpr size_t kRecentOrigins = 4;
     const std::array<FrameOrigin, kRecentOrigins>& recent_origins() const { return recent_; }
     void heard_from(const FrameOrigin& origin);
+
+    /// A newcomer whose unsigned frames carry on the stream of the peer at `of`: it takes
+    /// that peer's place only when the peer stays silent while it carries the stream on
+    /// (UdpServer::judge_succession).
+    struct Succession {
+        SocketAddress of;
+        TimePoint since;         // its first frame
+        uint32_t datagrams = 0;  // of its datagrams that carried the stream on
+        uint8_t sysid = 0, compid = 0;
+    };
+    Succession* succession() { return succession_ ? &*succession_ : nullptr; }
+    void start_succession(Succession s) { succession_ = s; }
+    void end_succession() { succession_.reset(); }
 
 protected:
     int write_datagrams(const iovec* frames, size_t count) override;
@@ -88,10 +116,10 @@ protected:
 private:
     UdpServer& server_;
     SocketAddress addr_;
-    TimePoint last_heard_;
     std::array<FrameOrigin, kRecentOrigins> recent_{};
     size_t next_recent_ = 0;  // the slot a new component takes (round robin)
-    bool rebound_ = false;
+    std::optional<Succession> succession_;
+    bool retiring_ = false;
 };
 
 class UdpServer : public Endpoint {
@@ -101,27 +129,63 @@ public:
     ~UdpServer() override;
     const char* kind() const override { return "udp-server"; }
     LinkCounters total_counters() const override;
+    void for_each_link(const std::function<void(const Link&)>& f) const override {
+        for (const auto& p : peers_)
+            f(*p);
+    }
     void finish(TimePoint deadline) override;
     void retune(const TxBudgetConfig& budget) override;
+    void set_marker_source(uint8_t sysid, uint8_t compid) override;
     int fd() const { return fd_.get(); }
     /// Watches for EPOLLOUT while some peer has a backlog.
     void update_write_interest();
+
+    /// Peers at most; past it the one whose last valid frame is oldest makes room.
+    static constexpr size_t kMaxPeers = 64;
+    /// An unsigned rebinding: the newcomer carries the stream on in this many datagrams over
+    /// at least kSuccessionQuiet, and the old address stays silent all that while. A stranger
+    /// guessing the next sequence number cannot silence the vehicle; a vehicle sends at least
+    /// its 1 Hz HEARTBEAT.
+    static constexpr uint32_t kSuccessionDatagrams = 3;
+    static constexpr Duration kSuccessionQuiet = seconds(2);
 
 private:
     UdpServer(const EndpointConfig& config, EventLoop& loop, FrameSink& sink, UnknownIdPolicy policy,
               UniqueFd fd);
     void on_events(uint32_t events);
-    /// The peer `addr` is, learned now when new (`is_new` says so); null past kMaxPeers.
-    UdpPeer* peer_for(const SocketAddress& addr, TimePoint now, bool& is_new);
-    /// A new peer whose first frames carry on an old peer's stream (the same system and
-    /// component, the sequence a little further): the old peer's NAT mapping was replaced.
-    /// Returns the old peer, or null.
-    UdpPeer* rebound_from(const UdpPeer& fresh) const;
+    /// The peer at `addr` (one that is not retiring), or null. Datagrams come in runs from
+    /// one peer: the last one found is tried first.
+    UdpPeer* find_peer(const SocketAddress& addr) {
+        if (last_peer_ && same_address(last_peer_->address(), addr))
+            return last_peer_;
+        return search_peer(addr);
+    }
+    UdpPeer* search_peer(const SocketAddress& addr);
+    /// Datagram i of the batch, from an address that is no peer: its first frame that passes
+    /// the checks (CRC; a verified signature with `signing:`) makes its sender a peer; a
+    /// datagram without one is counted here and goes nowhere.
+    void take_stranger(size_t i);
+    /// A new peer at `addr`; with the table full, the least recently valid one retires.
+    UdpPeer& learn_peer(const SocketAddress& addr, TimePoint now);
+    /// Whether a new peer's first frame carries on a known peer's stream (a NAT rebinding):
+    /// verified, it takes that peer's place at once; unsigned, its succession starts.
+    void check_rebinding(UdpPeer& fresh, const FrameOrigin& first, TimePoint now);
+    /// The peer whose stream `first` (a new peer's first frame) carries on, or null: the same
+    /// signed stream (system, component, link id) for a verified frame; for an unsigned one,
+    /// the same system and component, the sequence a little further.
+    UdpPeer* continued_stream(const UdpPeer& fresh, const FrameOrigin& first) const;
+    /// A valid datagram `origin` from a newcomer in succession: it takes the old peer's place
+    /// once the rule is met, and is a peer like any other once the old one spoke again.
+    void judge_succession(UdpPeer& peer, const FrameOrigin& origin, TimePoint now);
+    /// `fresh` takes the place of `old`, whose address is forgotten.
+    void rebind(UdpPeer& old, UdpPeer& fresh, TimePoint now);
+    /// A peer leaves after this round (a bond may hold its frames): not ready meanwhile.
+    void retire(UdpPeer& peer);
     /// Forgets a peer: detached, what waits for it dropped and counted, counters kept.
     void forget(UdpPeer& peer, TimePoint now);
+    void forget_retired();
     void forget_silent_peers();
 
-    static constexpr size_t kMaxPeers = 64;
     FrameSink& sink_;
     UnknownIdPolicy policy_;
     UniqueFd fd_;
@@ -132,13 +196,17 @@ private:
     ReceivedBatch frames_{sink_, &input_};
     std::vector<std::unique_ptr<UdpPeer>> peers_;
     UdpPeer* last_peer_ = nullptr;  // the peer the last datagram came from
-    // Addresses forgotten as rebound: one that sends again was a second live path of one
-    // system (two modems to one port), not a NAT rebinding, and the detection stops.
-    std::array<SocketAddress, 4> rebound_from_{};
-    size_t next_rebound_ = 0;
-    bool detect_rebinding_ = true;
+    // Addresses left by a rebinding, and when: one that sends again within peer_timeout was a
+    // second live path of one system (two modems to one port), not a NAT rebinding.
+    struct Rebinding {
+        SocketAddress from;
+        TimePoint at;
+    };
+    std::array<Rebinding, 4> rebindings_{};
+    size_t next_rebinding_ = 0;
+    TimePoint rebinding_paused_until_{};  // after two live paths: for peer_timeout
     LinkCounters retired_;      // counters of forgotten peers, so totals never go back
-    uint64_t refused_peers_ = 0;
+    LogBudget peer_log_{20, seconds(10)};  // peers learned, forgotten, rebound
 };
 
 class UdpClient : public Endpoint {

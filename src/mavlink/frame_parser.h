@@ -29,6 +29,17 @@ struct ParserCounters {
                                   // frame (a rejected candidate's bytes become garbage)
     uint64_t unknown_ids = 0;     // frames with an unknown msgid (forwarded or dropped)
     uint64_t bad_flags = 0;       // v2 frames with incompat flag bits we do not understand
+
+    ParserCounters& operator+=(const ParserCounters& o) {
+        frames += o.frames;
+        bytes += o.bytes;
+        crc_errors += o.crc_errors;
+        bad_lengths += o.bad_lengths;
+        garbage_bytes += o.garbage_bytes;
+        unknown_ids += o.unknown_ids;
+        bad_flags += o.bad_flags;
+        return *this;
+    }
 };
 
 /// Parses the frames of one datagram in place. Frames are views into `datagram`.

@@ -1,5 +1,6 @@
-// The two places mavbond writes MAVLink bytes itself: frames it originates (HEARTBEAT and
-// STATUSTEXT from its own identity) and the sequence number of a received frame it renumbers.
+// The places mavbond writes MAVLink bytes itself: frames it originates (HEARTBEAT and
+// STATUSTEXT from its own identity), the sequence number of a received frame it renumbers and
+// the signed flag a bond's signature sets and takes off (mavlink/signing.h).
 #pragma once
 
 #include <cstdint>
@@ -30,6 +31,14 @@ size_t write_frame_v2(std::span<uint8_t> out, FrameSource source, uint32_t msgid
 /// frame. Call it before the frame is routed. Signed frames are refused (the signature
 /// covers seq): false.
 bool rewrite_seq_in_place(const Frame& frame, uint8_t seq);
+
+/// The same for a frame's bytes of one's own (a budget's held copy): its seq byte and CRC.
+bool rewrite_seq(std::span<uint8_t> frame, uint8_t seq);
+
+/// Sets or clears the signed flag of the MAVLink 2 frame at `bytes` (its header, payload and
+/// CRC; the signature itself is the caller's), its CRC updated from a table by payload length:
+/// what a bond's signing does to every frame, in both directions.
+void set_signed_flag_in_place(uint8_t* bytes, bool on);
 
 /// The sequence number on the wire (a renumbered frame's Frame::seq still holds the old one).
 inline uint8_t wire_seq(const Frame& frame) {

@@ -10,6 +10,7 @@
 #include <cstring>
 
 #include "core/unique_fd.h"
+#include "mavlink/frame_writer.h"
 
 namespace mavbond {
 namespace {
@@ -34,8 +35,13 @@ Result<SigningKey> load_signing_key(const std::string& path) {
     auto refuse = [&path](const std::string& why) { return make_error("key file " + path + ": " + why); };
     // open, then fstat the open file: what is checked is what is read.
     UniqueFd fd(open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY));
-    if (!fd)
-        return refuse(std::string("cannot open: ") + strerror(errno));
+    if (!fd) {
+        const int err = errno;
+        return refuse(std::string("cannot open: ") + strerror(err) +
+                      (err == ENOENT ? " (make one with: mavbondctl keygen " + path +
+                                           "; then copy the same file to the other side)"
+                                     : ""));
+    }
     struct stat st {};
     if (fstat(fd.get(), &st) < 0)
         return refuse(std::string("cannot stat: ") + strerror(errno));
@@ -93,19 +99,35 @@ uint64_t signing_timestamp_now() {
     return since_2015 > 0 ? static_cast<uint64_t>(since_2015) / 10 : 0;
 }
 
+SignatureFields signature_fields(std::span<const uint8_t> signed_frame) {
+    const uint8_t* sig = signed_frame.data() + signed_frame.size() - kSignatureLen;
+    SignatureFields out;
+    out.link_id = sig[0];
+    for (int i = 6; i >= 1; i--)
+        out.timestamp = out.timestamp << 8 | sig[i];
+    return out;
+}
+
+std::array<uint8_t, 6> signature_of(const Sha256& keyed, std::span<const uint8_t> frame) {
+    Sha256 h = keyed;
+    h.update(frame);
+    Sha256::Digest digest = h.finish();
+    std::array<uint8_t, 6> out;
+    std::copy_n(digest.begin(), out.size(), out.begin());
+    return out;
+}
+
 SignatureVerifier::SignatureVerifier(const SigningKey& key, WallClock clock) : clock_(clock) {
     keyed_.update(key);
 }
 
 bool SignatureVerifier::signature_matches(std::span<const uint8_t> bytes) const {
     constexpr size_t kSigBytes = 6;
-    Sha256 h = keyed_;
-    h.update(bytes.first(bytes.size() - kSigBytes));
-    Sha256::Digest digest = h.finish();
+    const std::array<uint8_t, kSigBytes> want = signature_of(keyed_, bytes.first(bytes.size() - kSigBytes));
     // Every byte compared whatever the first difference: the time taken tells nothing.
     uint8_t diff = 0;
     for (size_t i = 0; i < kSigBytes; i++)
-        diff |= static_cast<uint8_t>(digest[i] ^ bytes[bytes.size() - kSigBytes + i]);
+        diff |= static_cast<uint8_t>(want[i] ^ bytes[bytes.size() - kSigBytes + i]);
     return diff == 0;
 }
 
@@ -130,12 +152,21 @@ SignatureVerifier::Stream& SignatureVerifier::add(uint32_t id) {
                                         [](const Stream& a, const Stream& b) { return a.heard < b.heard; });
         slot = static_cast<size_t>(oldest - streams_.begin());
     }
-    streams_[slot] = Stream{id, 0, 0};
+    Stream& s = streams_[slot];
+    s.id = id;
+    s.heard = 0;
+    s.window.clear();
     last_ = slot;
-    return streams_[slot];
+    return s;
 }
 
-SignatureVerifier::Verdict SignatureVerifier::check(const Frame& frame) {
+bool SignatureVerifier::first_delivery(const SignedId& id) {
+    Stream* stream = id.known ? find(id.stream) : nullptr;
+    return !stream || stream->window.first_delivery(id.timestamp);
+}
+
+SignatureVerifier::Verdict SignatureVerifier::check(const Frame& frame, unsigned link,
+                                                    SignedId* out) {
     std::span<const uint8_t> bytes = frame.bytes;
     if (frame.version != 2 || !frame.is_signed())
         return Verdict::Unsigned;
@@ -144,27 +175,48 @@ SignatureVerifier::Verdict SignatureVerifier::check(const Frame& frame) {
     if (!signature_matches(bytes))
         return Verdict::BadSignature;
 
-    const uint8_t* sig = bytes.data() + bytes.size() - kSignatureLen;  // link_id, timestamp, ...
-    uint64_t timestamp = 0;
-    for (int i = 6; i >= 1; i--)
-        timestamp = timestamp << 8 | sig[i];
-    uint32_t id = uint32_t{frame.sysid} << 16 | uint32_t{frame.compid} << 8 | sig[0];
+    const SignatureFields sig = signature_fields(bytes);
+    uint32_t id = uint32_t{frame.sysid} << 16 | uint32_t{frame.compid} << 8 | sig.link_id;
     Stream* stream = find(id);
-    if (stream) {
-        if (timestamp <= stream->timestamp)
-            return Verdict::Replay;
-    } else {
+    if (!stream) {
         // A stream never heard may start up to a minute behind the local timestamp: a
         // capture older than that cannot be replayed as a "new" stream.
         local_ts_ = std::max(local_ts_, clock_());
-        if (timestamp + kNewStreamWindow < local_ts_)
+        if (sig.timestamp + kNewStreamWindow < local_ts_)
             return Verdict::Replay;
         stream = &add(id);
     }
-    stream->timestamp = timestamp;
+    const bool newest = stream->window.size() == 0 || sig.timestamp > stream->window.newest();
+    if (!stream->window.admit(sig.timestamp, link))
+        return Verdict::Replay;
     stream->heard = ++accepts_;
-    local_ts_ = std::max(local_ts_, timestamp);
+    local_ts_ = std::max(local_ts_, sig.timestamp);
+    if (out)
+        *out = SignedId{id, sig.timestamp, true, newest};
     return Verdict::Accept;
+}
+
+FrameSigner::FrameSigner(const SigningKey& key, uint8_t link_id, WallClock clock)
+    : link_id_(link_id), clock_(clock) {
+    keyed_.update(key);
+}
+
+size_t FrameSigner::sign(std::span<const uint8_t> frame, std::span<uint8_t> out,
+                         uint64_t not_before) {
+    if (frame.size() < kHeaderLenV2 + kChecksumLen || frame[0] != kMagicV2 ||
+        (frame[2] & kIncompatSigned) || frame.size() + kSignatureLen > out.size())
+        return 0;
+    const size_t len = frame.size();
+    uint8_t* p = out.data();
+    std::memcpy(p, frame.data(), len);
+    set_signed_flag_in_place(p, true);
+    last_ = std::max({last_ + 1, clock_(), not_before});
+    p[len] = link_id_;
+    for (int i = 0; i < 6; i++)
+        p[len + 1 + i] = static_cast<uint8_t>(last_ >> (8 * i));
+    const std::array<uint8_t, 6> sig = signature_of(keyed_, std::span<const uint8_t>(p, len + 7));
+    std::memcpy(p + len + 7, sig.data(), sig.size());
+    return len + kSignatureLen;
 }
 
 }  // namespace mavbond

@@ -21,8 +21,31 @@ Bond::Bond(const BondConfig& config, const std::vector<EndpointConfig>& endpoint
     if (metered)
         standby_ = std::make_unique<Standby>(config, member_configs, classes, now);
     last_heard_.assign(members_.size(), TimePoint{});
-    if (config.renumber)
+    if (config.signing.enabled) {
+        signing_ = std::make_shared<BondSigning>(config.signing.key);
+        signed_links_ = config.signing.links;
+        for (const std::string& link : signed_links_)
+            signing_->member(link);
+    }
+}
+
+void Bond::set_renumbering(bool on) {
+    if (!on)
+        renumberer_.reset();
+    else if (!renumberer_)
         renumberer_ = std::make_unique<SeqRenumberer>();
+}
+
+bool Bond::continue_from(const Bond& old) {
+    numbering_ = old.numbering_;
+    if (signing_ && old.signing_ && old.signing_->same_key(*signing_) &&
+        old.signing_->has_room_for(signed_links_)) {
+        // The endpoints a reload kept verify with the old one: it goes on, with any new links.
+        signing_ = old.signing_;
+        for (const std::string& link : signed_links_)
+            signing_->member(link);
+    }
+    return standby_ && old.standby_ && standby_->continue_from(*old.standby_);
 }
 
 uint32_t Bond::member_index(const std::string& endpoint) const {
@@ -63,7 +86,12 @@ std::vector<std::pair<const char*, uint64_t>> Bond::renumber_counters() const {
     const SeqRenumberer::Counters& c = renumberer_->counters();
     return {{"renumbered", c.renumbered},   {"gaps", c.gaps},
             {"late_filled", c.late_filled}, {"unplaced", c.unplaced},
-            {"untracked", c.untracked},     {"signed_left_alone", signed_left_alone_}};
+            {"untracked", c.untracked},     {"signed_left_alone", signed_left_alone_},
+            {"added", c.added}};
+}
+
+std::optional<uint8_t> Bond::number_added_frame(uint8_t sysid, uint8_t compid) {
+    return renumberer_ ? renumberer_->add(sysid, compid) : std::nullopt;
 }
 
 // --- arrival order -------------------------------------------------------------------------

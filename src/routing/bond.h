@@ -5,6 +5,7 @@
 // for arrival order and the sockets that feed them, and the renumbering of what it delivers.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -14,6 +15,8 @@
 
 #include "config/config.h"
 #include "core/clock.h"
+#include "mavlink/bond_signing.h"
+#include "routing/egress_numbering.h"
 #include "routing/frame_sink.h"
 #include "routing/link.h"
 #include "routing/renumber.h"
@@ -61,11 +64,30 @@ public:
     Standby* standby() { return standby_.get(); }
     const Standby* standby() const { return standby_.get(); }
     /// A reload rebuilt this bond from `old`, its namesake: what outlives the config is
-    /// taken over (the standby's measurements and state, Standby::continue_from). True when
-    /// a standby was.
-    bool continue_from(const Bond& old) {
-        return standby_ && old.standby_ && standby_->continue_from(*old.standby_);
+    /// taken over (its numbering of what it sends, so the far side sees one stream; the
+    /// standby's measurements and state, Standby::continue_from; the signing with the same
+    /// key: its replay window and clock, which the endpoints kept share). True when a standby
+    /// was.
+    bool continue_from(const Bond& old);
+
+    /// Its signing (`signing:`, mavlink/bond_signing.h); null when it signs no link. Shared
+    /// with its signed members' endpoints, which verify with it.
+    const std::shared_ptr<BondSigning>& signing() const { return signing_; }
+    /// The member endpoints it signs, in config order.
+    const std::vector<std::string>& signed_links() const { return signed_links_; }
+    /// Whether it signs what it sends on member endpoint `endpoint`.
+    bool signs(const std::string& endpoint) const {
+        return std::find(signed_links_.begin(), signed_links_.end(), endpoint) !=
+               signed_links_.end();
     }
+    /// The router's: the frame it is routing now (`routing`), signed for this bond once,
+    /// whichever of the bond's links it goes to first; `refused`: it could not be signed.
+    struct SignedCopy {
+        uint64_t routing = UINT64_MAX;
+        bool refused = false;
+        Frame frame;
+    };
+    SignedCopy signed_copy;
 
     /// Whether a member's radio reports for the bond (`radio_status`): then mavbond speaks
     /// RADIO_STATUS for the bond, and any other RADIO_STATUS that comes in on a member (a far
@@ -75,14 +97,33 @@ public:
     /// RADIO_STATUS frames dropped so (not the radios' own, which their endpoints take).
     uint64_t foreign_radio_status = 0;
 
-    /// Whether the bond renumbers what it delivers (`renumber: true`).
+    /// How it numbers what it sends (routing/egress_numbering.h): shared with the member
+    /// links, which number the copies their budgets held when they go.
+    const std::shared_ptr<EgressNumbering>& numbering() const { return numbering_; }
+
+    /// Whether the bond renumbers what it delivers (FilterChain::renumbers decides).
     bool renumbers() const { return renumberer_ != nullptr; }
+    /// Starts renumbering afresh (`on`) or stops it.
+    void set_renumbering(bool on);
     /// Gives a frame of a member that the filters let through (`delivered`) its output
     /// sequence number, in its bytes and in `frame.seq`. `bond_pos`: its place in its source's
     /// stream as dedup numbers it (the same for every link's copy), when dedup placed it.
     /// Signed frames are left alone, and counted whether delivered or not: the signature
     /// covers the sequence number.
     void renumber(Frame& frame, bool delivered, std::optional<int64_t> bond_pos, TimePoint arrival);
+    /// The number for a frame mavbond adds to the stream of (sysid, compid) it delivers (a link
+    /// event told as the vehicle), so a GCS counts no gap; nullopt when the bond does not
+    /// renumber or has delivered nothing of that source yet.
+    std::optional<uint8_t> number_added_frame(uint8_t sysid, uint8_t compid);
+
+    /// A vehicle's autopilot (its HEARTBEAT's autopilot is not MAV_AUTOPILOT_INVALID, its type
+    /// no GCS) as heard through the bond: this side faces the ground station.
+    struct Autopilot {
+        uint8_t sysid = 0, compid = 0;
+    };
+    const std::optional<Autopilot>& autopilot() const { return autopilot_; }
+    void heard_autopilot(uint8_t sysid, uint8_t compid) { autopilot_ = Autopilot{sysid, compid}; }
+
     /// What renumbering did, as (name, count) pairs in a fixed order; empty when the bond
     /// does not renumber.
     std::vector<std::pair<const char*, uint64_t>> renumber_counters() const;
@@ -124,9 +165,13 @@ private:
     std::vector<TimePoint> last_heard_;
     LinkId active_link_ = kNoLink;
     uint64_t switches_ = 0;
+    std::shared_ptr<EgressNumbering> numbering_ = std::make_shared<EgressNumbering>();
     std::unique_ptr<SeqRenumberer> renumberer_;  // nullptr: the bond does not renumber
     std::unique_ptr<Standby> standby_;           // nullptr: no member is metered
+    std::shared_ptr<BondSigning> signing_;       // nullptr: it signs no link
+    std::vector<std::string> signed_links_;      // the endpoints it signs, in config order
     uint64_t signed_left_alone_ = 0;
+    std::optional<Autopilot> autopilot_;
 };
 
 }  // namespace mavbond

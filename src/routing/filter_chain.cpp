@@ -94,23 +94,39 @@ Result<std::unique_ptr<FilterChain>> FilterChain::create(const Config& config,
     return chain;
 }
 
+bool FilterChain::provides(const std::string& bond, uint32_t what) const {
+    return std::any_of(instances_.begin(), instances_.end(), [&](const auto& inst) {
+        return (inst->host.provides & what) && inst->config->covers_bond(bond);
+    });
+}
+
 Result<void> FilterChain::check_bonds(const Config& config) const {
+    // What a bond's settings need some filter on the bond to do: declared by the instances
+    // (provides), never read from a plugin's options.
     for (const BondConfig& bond : config.bonds) {
-        if (!bond.renumber)
-            continue;
-        // Renumbering gives out the bond's positions of each frame: some filter must align
-        // the links' own numberings into them.
-        bool provided = std::any_of(instances_.begin(), instances_.end(), [&](const auto& inst) {
-            return (inst->host.provides & MAVBOND_PROVIDES_ALIGNED_POSITIONS) &&
-                   inst->config->covers_bond(bond.name);
-        });
-        if (!provided)
+        // Renumbering gives out the bond's positions of each frame: some filter must place
+        // every link's copies in one numbering.
+        if (bond.renumber.value_or(false) && !provides(bond.name, MAVBOND_PROVIDES_ALIGNED_POSITIONS))
             return make_error(where(bond.renumber_mark) + ": bond '" + bond.name +
-                              "': 'renumber' needs a dedup filter with 'key: content' on this "
-                              "bond, enabled and scoped to it by 'bonds:' or unscoped (with key: "
-                              "frame the copies already share one numbering)");
+                              "': 'renumber' needs a dedup filter on this bond, enabled and "
+                              "scoped to it by 'bonds:' or unscoped");
+        // An error, not a warning: with no one choosing the active link the bond sends on
+        // every link, so a metered link meant to stay quiet is paid for in full, silently.
+        if (bond.tx == BondConfig::Tx::Active && !provides(bond.name, MAVBOND_PROVIDES_ACTIVE_LINK))
+            return make_error(where(bond.tx_mark) + ": bond '" + bond.name +
+                              "': 'tx: active' needs a linkswitch filter on this bond, enabled "
+                              "and scoped to it by 'bonds:' or unscoped, to choose the active "
+                              "link (without one the bond would send on every link: that is "
+                              "'tx: broadcast')");
     }
     return {};
+}
+
+std::vector<std::string> FilterChain::plugin_paths() const {
+    std::vector<std::string> paths;
+    for (const auto& p : plugins_)
+        paths.push_back(p->path());
+    return paths;
 }
 
 FilterChain::~FilterChain() {
@@ -130,11 +146,14 @@ void FilterChain::on_link(const Link& link, bool added) {
     LinkView& v = view(id);
     if (added) {
         v.source = &link;
+        v.leaving = false;
         v.name = link.name();
+        v.endpoint = link.endpoint_name();
         v.link = mavbond_link{};
         v.link.struct_size = sizeof(mavbond_link);
         v.link.id = id;
         v.link.name = v.name.c_str();
+        v.link.endpoint = v.endpoint.c_str();
         uint32_t bond = router_.bond_of(link);
         v.link.bond_id = bond == Router::kNoBond ? MAVBOND_NO_BOND : bond;
         v.link.bond_name = bond == Router::kNoBond ? nullptr : router_.bonds()[bond].name().c_str();
@@ -146,13 +165,16 @@ void FilterChain::on_link(const Link& link, bool added) {
                 v.scope_mask |= uint64_t{1} << i;
         }
     } else {
-        v.source = nullptr;  // no longer among links() while the instances hear it go
+        v.leaving = true;  // no longer among links() while the instances hear it go, but its
+                           // counters are there for their last look
     }
     for (size_t i = 0; i < instances_.size(); i++) {
         const auto& d = instances_[i]->plugin->descriptor();
         if (d.on_link && (v.scope_mask >> i & 1))
             d.on_link(instances_[i]->self, &v.link, added ? MAVBOND_LINK_ADDED : MAVBOND_LINK_REMOVED);
     }
+    if (!added)
+        v.source = nullptr;
 }
 
 void FilterChain::fill_c_frame(mavbond_frame& f, const Frame& frame, TimePoint rx_time) {
@@ -375,6 +397,23 @@ std::vector<FilterReport> FilterChain::report() const {
     return reports;
 }
 
+std::vector<std::string> FilterChain::describe(uint32_t bond) const {
+    std::vector<std::string> lines;
+    if (bond >= router_.bonds().size())
+        return lines;
+    const std::string& name = router_.bonds()[bond].name();
+    for (const auto& inst : instances_) {
+        auto hook = inst->plugin->descriptor().describe;
+        if (!hook || !inst->config->covers_bond(name))
+            continue;
+        char buf[512];
+        size_t n = hook(inst->self, bond, buf, sizeof buf);
+        if (n > 0)
+            lines.push_back(inst->host.name + ": " + std::string(buf, std::min(n, sizeof buf - 1)));
+    }
+    return lines;
+}
+
 // --- HostServices --------------------------------------------------------------------------
 
 uint64_t FilterChain::now_ns() { return to_ns(router_.arrival_clock(loop_.now())); }
@@ -411,7 +450,7 @@ size_t FilterChain::links(const mavbond_host& h, const mavbond_link** out, size_
     const uint64_t bit = uint64_t{1} << h.index;
     size_t n = 0;
     for (const auto& v : links_) {
-        if (!v->source || !(v->scope_mask & bit))
+        if (!v->source || v->leaving || !(v->scope_mask & bit))
             continue;
         if (n < max)
             out[n] = &v->link;
@@ -435,10 +474,17 @@ int FilterChain::set_active_link(uint32_t bond_id, uint32_t link_id) {
 int FilterChain::link_counters(uint32_t link_id, mavbond_link_counters* out) {
     if (link_id >= links_.size() || !view(link_id).source)
         return -ENOENT;
-    const LinkCounters& s = view(link_id).source->counters();
+    const Link& link = *view(link_id).source;
+    const LinkCounters& s = link.counters();
+    const LinkAccount& a = link.account();
     *out = mavbond_link_counters{sizeof(mavbond_link_counters), s.rx.frames, s.rx.bytes,
                                  s.rx.crc_errors, s.rx.garbage_bytes, s.rx.unknown_ids,
-                                 s.tx_frames, s.tx_bytes, s.tx_dropped};
+                                 s.tx_frames, s.tx_bytes, s.tx_dropped,
+                                 (a.exact() ? MAVBOND_ACCOUNT_EXACT : 0u) |
+                                     (a.peer_standby() ? MAVBOND_ACCOUNT_PEER_STANDBY : 0u) |
+                                     (a.moved() ? MAVBOND_ACCOUNT_MOVED : 0u),
+                                 a.exact() ? a.expected_now() : 0,
+                                 a.exact() ? a.received_now() : 0};
     return 0;
 }
 
@@ -447,7 +493,13 @@ int FilterChain::bond_state(uint32_t bond_id, mavbond_bond_state* out) {
         return -ENOENT;
     const Bond& b = router_.bonds()[bond_id];
     *out = mavbond_bond_state{sizeof(mavbond_bond_state), b.active_link(), b.switches(),
-                              static_cast<uint8_t>(b.tx_active())};
+                              static_cast<uint8_t>(b.tx_active()), 0, 0};
+    if (const Standby* standby = b.standby()) {
+        bool announced = false;
+        out->peer_resend_ns = static_cast<uint64_t>(
+            std::chrono::duration_cast<std::chrono::nanoseconds>(standby->peer_resend(&announced)).count());
+        out->peer_resend_announced = announced;
+    }
     return 0;
 }
 

@@ -44,27 +44,44 @@ public:
                                                        const std::string& plugin_dir,
                                                        EventLoop& loop, Router& router);
     ~FilterChain() override;
+    /// The files the chain's plugins were loaded from, in load order.
+    std::vector<std::string> plugin_paths() const;
 
     void on_ingress(ReceivedFrame* const* frames, size_t count, Ingress* out) override;
     bool on_egress(const Frame& frame, const Link& to) override;
     void on_link(const Link& link, bool added) override;
 
     size_t size() const { return instances_.size(); }
+    /// Whether bond `bond` renumbers what it delivers: as its `renumber` says, and when it says
+    /// nothing, wherever a filter gives the positions (dedup): a copy a slower link rescued
+    /// comes after frames sent after it, and a GCS counts each step back as ~255 lost.
+    bool renumbers(const BondConfig& bond) const {
+        return bond.renumber.value_or(provides(bond.name, MAVBOND_PROVIDES_ALIGNED_POSITIONS));
+    }
     /// What each filter shows of itself now, in chain order (see FilterReport).
     std::vector<FilterReport> report() const;
+    /// What the filters acting on bond `bond` (an index of the router's) say they derived
+    /// for it (their describe hook), each as "NAME: text", in chain order.
+    std::vector<std::string> describe(uint32_t bond) const;
 
 private:
     struct Instance;
     struct LinkView {
         mavbond_link link{};
         std::string name;
+        std::string endpoint;
         const Link* source = nullptr;  // nullptr: no link has this id now
+        bool leaving = false;          // the instances hear it go: not among links() any more
         uint64_t scope_mask = 0;  // bit i: instance i applies to this link
     };
     FilterChain(EventLoop& loop, Router& router);
     static void fill_c_frame(mavbond_frame& f, const Frame& frame, TimePoint rx_time);
-    /// Every bond that renumbers needs an instance that provides aligned positions on it.
+    /// What a bond asks of its filters is provided: aligned positions for `renumber`, a
+    /// chosen active link for `tx: active`.
     Result<void> check_bonds(const Config& config) const;
+    /// Whether an enabled instance on `bond` declares `what` (MAVBOND_PROVIDES_*): aligned
+    /// positions of the frames it delivers, a chosen active link.
+    bool provides(const std::string& bond, uint32_t what) const;
 
     // HostServices (what the plugins' host API calls land on)
     uint64_t now_ns() override;

@@ -6,10 +6,12 @@
 
 #include <array>
 #include <cstddef>
+#include <memory>
 #include <string>
 
 #include "core/clock.h"
 #include "core/event_loop.h"
+#include "mavlink/bond_signing.h"
 #include "mavlink/frame.h"
 #include "routing/link.h"
 #include "routing/stream_positions.h"
@@ -65,6 +67,9 @@ struct ReceivedFrame {
     /// Its place in its source's stream on this link: the router tracks it once, before the
     /// filters, for every frame it routes (stats, linkswitch, dedup and standby read it).
     StreamStep step{};
+    /// A frame its link's bond verified (signed by the peer or its source): its signature's
+    /// identity, by which the router delivers it once (BondSigning::first_delivery).
+    SignedId signed_id{};
 };
 
 class FrameSink;
@@ -79,7 +84,8 @@ public:
     ReceivedBatch(FrameSink& sink, Input* input = nullptr) : sink_(sink), input_(input) {}
 
     /// Adds a frame; a full batch goes to the sink first.
-    inline void add(const Frame& frame, Link& from, TimePoint arrival, bool routed);
+    inline void add(const Frame& frame, Link& from, TimePoint arrival, bool routed,
+                    const SignedId& signed_id = {});
     /// Hands the frames to the sink. Called after every read that returned something, even
     /// when no frame came of it: the sink learns how far the input is read.
     inline void submit();
@@ -112,12 +118,19 @@ public:
     /// byte-stream endpoint handed over is lent any more: it calls this before it reuses the
     /// buffer its frames point into. (The loop calls it at every round's end too.)
     virtual void end_batch() = 0;
+    /// The signing of bond `bond` (mavlink/bond_signing.h), which the links it signs verify
+    /// what they receive with; null when it signs nothing (or there is no such bond).
+    virtual std::shared_ptr<BondSigning> bond_signing(const std::string& bond) {
+        (void)bond;
+        return nullptr;
+    }
 };
 
-void ReceivedBatch::add(const Frame& frame, Link& from, TimePoint arrival, bool routed) {
+void ReceivedBatch::add(const Frame& frame, Link& from, TimePoint arrival, bool routed,
+                        const SignedId& signed_id) {
     if (size_ == kCapacity)
         submit();
-    frames_[size_++] = ReceivedFrame{frame, &from, arrival, routed, {}};
+    frames_[size_++] = ReceivedFrame{frame, &from, arrival, routed, {}, signed_id};
 }
 
 void ReceivedBatch::submit() {

@@ -5,12 +5,7 @@
 namespace mavbond {
 
 LinkCounters& LinkCounters::operator+=(const LinkCounters& o) {
-    rx.frames += o.rx.frames;
-    rx.bytes += o.rx.bytes;
-    rx.crc_errors += o.rx.crc_errors;
-    rx.garbage_bytes += o.rx.garbage_bytes;
-    rx.unknown_ids += o.rx.unknown_ids;
-    rx.bad_flags += o.rx.bad_flags;
+    rx += o.rx;
     rx_filtered += o.rx_filtered;
     rx_overflows += o.rx_overflows;
     tx_frames += o.tx_frames;
@@ -21,9 +16,16 @@ LinkCounters& LinkCounters::operator+=(const LinkCounters& o) {
     sig_unsigned += o.sig_unsigned;
     sig_bad += o.sig_bad;
     sig_replay += o.sig_replay;
+    tx_signed += o.tx_signed;
     resolve_failures += o.resolve_failures;
     address_changes += o.address_changes;
     peer_rebinds += o.peer_rebinds;
+    stranger_datagrams += o.stranger_datagrams;
+    peers_evicted += o.peers_evicted;
+    clients_refused += o.clients_refused;
+    clients_idle_closed += o.clients_idle_closed;
+    routes_evicted += o.routes_evicted;
+    markers_foreign += o.markers_foreign;
     last_rx = std::max(last_rx, o.last_rx);
     for (size_t c = 0; c < kTxClassCount; c++)
         tx_class[c] += o.tx_class[c];

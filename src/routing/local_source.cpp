@@ -38,11 +38,16 @@ void LocalSource::send_heartbeat() {
     send(kMsgHeartbeat, payload, sizeof payload);
 }
 
-void LocalSource::send_statustext(Severity severity, std::string_view text) {
+std::array<uint8_t, 54> statustext_payload(Severity severity, std::string_view text) {
     // severity, text[50]; the extensions id and chunk_seq stay 0 (a message in one piece).
     std::array<uint8_t, 1 + kStatustextLen + 3> payload{};
     payload[0] = static_cast<uint8_t>(severity);
     std::copy_n(text.begin(), std::min(text.size(), kStatustextLen), payload.begin() + 1);
+    return payload;
+}
+
+void LocalSource::send_statustext(Severity severity, std::string_view text) {
+    const auto payload = statustext_payload(severity, text);
     send(kMsgStatustext, payload.data(), payload.size());
 }
 
@@ -55,7 +60,7 @@ void LocalSource::send_named_value_int(const std::array<char, 10>& name, int32_t
     std::memcpy(payload.data(), &ms, 4);
     std::memcpy(payload.data() + 4, &value, 4);
     std::memcpy(payload.data() + 8, name.data(), name.size());
-    send(kMsgNamedValueInt, payload.data(), payload.size(), Router::Reach::to_bond(bond));
+    send(kMsgNamedValueInt, payload.data(), payload.size(), bond);
 }
 
 bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
@@ -74,12 +79,28 @@ bool inject_local_frame(Router& router, FrameSource source, uint32_t msgid,
     return true;
 }
 
-void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len, Router::Reach reach) {
-    if (!inject_local_frame(router_, FrameSource{identity_.sysid, identity_.compid, seq_}, msgid,
-                            std::span<const uint8_t>(payload, len), reach))
-        return;
-    seq_++;
+void LocalSource::send(uint32_t msgid, const uint8_t* payload, size_t len,
+                       std::optional<uint32_t> bond_only) {
+    const std::span<const uint8_t> bytes(payload, len);
+    const auto& bonds = router_.bonds();
+    if (bond_only) {
+        if (*bond_only < bonds.size())
+            send_numbered(seq_by_bond_[bonds[*bond_only].name()], msgid, bytes,
+                          Router::Reach::to_bond(*bond_only));
+    } else {
+        send_numbered(seq_outside_, msgid, bytes, Router::Reach(Router::Reach::OutsideBonds));
+        for (uint32_t b = 0; b < bonds.size(); b++)
+            send_numbered(seq_by_bond_[bonds[b].name()], msgid, bytes,
+                          Router::Reach(Router::Reach::BondRouted, b));
+    }
     frames_sent_++;
+}
+
+void LocalSource::send_numbered(uint8_t& seq, uint32_t msgid, std::span<const uint8_t> payload,
+                                Router::Reach reach) {
+    if (inject_local_frame(router_, FrameSource{identity_.sysid, identity_.compid, seq}, msgid,
+                           payload, reach))
+        seq++;
 }
 
 }  // namespace mavbond

@@ -1,12 +1,21 @@
-// mavbond as a MAVLink component of its own (`identity:`): the frames it originates, with its
-// own sequence counter, sent through the router as from a local source. Its HEARTBEAT says
-// what it is (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID) so a GCS lists it as a
-// component and not as a vehicle.
+// mavbond as a MAVLink component of its own (`identity:`): the frames it originates, sent
+// through the router as from a local source. Its HEARTBEAT says what it is
+// (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID) so a GCS lists it as a component and
+// not as a vehicle.
+//
+// Sequence numbers: one counter per destination, so each receiver sees a gapless stream of
+// mavbond's frames (a GCS counts a gap as loss). The links outside bonds share one (every frame
+// of theirs goes to all of them); each bond has its own, so a frame goes to its members as one
+// frame, the same number on every link (the peer's dedup knows the copies by it), and the
+// bond's standby reports, which go to its members only, leave no gap at the GCS.
 #pragma once
 
 #include <array>
 #include <cstdint>
+#include <map>
+#include <optional>
 #include <span>
+#include <string>
 #include <string_view>
 
 #include "config/config.h"
@@ -26,6 +35,9 @@ enum class Severity : uint8_t {
     Emergency = 0, Alert = 1, Critical = 2, Error = 3, Warning = 4, Notice = 5, Info = 6, Debug = 7
 };
 
+/// A STATUSTEXT's payload: the severity and the text, cut to its 50 characters.
+std::array<uint8_t, 54> statustext_payload(Severity severity, std::string_view text);
+
 class LocalSource {
 public:
     /// Starts the HEARTBEAT timer when identity.heartbeat is set.
@@ -38,14 +50,27 @@ public:
     void send_named_value_int(const std::array<char, 10>& name, int32_t value, uint32_t bond);
 
     uint64_t frames_sent() const { return frames_sent_; }
+    uint8_t sysid() const { return identity_.sysid; }
+    uint8_t compid() const { return identity_.compid; }
+    /// Goes on as another component (routing/identity.h derives it), with a counter of its own.
+    void set_compid(uint8_t compid) {
+        identity_.compid = compid;
+        seq_outside_ = 0;
+        seq_by_bond_.clear();
+    }
 
 private:
-    void send(uint32_t msgid, const uint8_t* payload, size_t len, Router::Reach reach = {});
+    /// To every link (Everywhere: each destination with its own number) or to one bond's.
+    void send(uint32_t msgid, const uint8_t* payload, size_t len,
+              std::optional<uint32_t> bond_only = std::nullopt);
+    void send_numbered(uint8_t& seq, uint32_t msgid, std::span<const uint8_t> payload,
+                       Router::Reach reach);
 
-    const IdentityConfig identity_;  // a copy: a reload replaces the Config
+    IdentityConfig identity_;  // a copy: a reload replaces the Config
     EventLoop& loop_;
     Router& router_;
-    uint8_t seq_ = 0;
+    uint8_t seq_outside_ = 0;                     // the links in no bond
+    std::map<std::string, uint8_t> seq_by_bond_;  // by name: a reload may renumber the bonds
     uint64_t frames_sent_ = 0;
     EventLoop::Timer heartbeat_timer_;
 };

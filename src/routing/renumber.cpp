@@ -27,7 +27,6 @@ uint8_t SeqRenumberer::next_number(Source& s) {
     counters_.gaps += s.owed;
     s.owed = 0;
     s.next_out = static_cast<uint8_t>(out + 1);
-    counters_.renumbered++;
     return out;
 }
 
@@ -47,6 +46,7 @@ uint8_t SeqRenumberer::deliver(uint8_t sysid, uint8_t compid, uint8_t seq, int64
         counters_.late_filled++;
     // Else new (its skipped positions are holes now), or a copy later than its hole waited:
     // delivered, and already counted lost.
+    counters_.renumbered++;
     return next_number(*s);
 }
 
@@ -59,6 +59,15 @@ uint8_t SeqRenumberer::deliver_unplaced(uint8_t sysid, uint8_t compid, uint8_t s
     counters_.unplaced++;
     if (!s->holes)
         return seq;  // nothing to continue yet: its own number
+    counters_.renumbered++;
+    return next_number(*s);
+}
+
+std::optional<uint8_t> SeqRenumberer::add(uint8_t sysid, uint8_t compid) {
+    Source* s = source(sysid, compid);
+    if (!s || !s->holes)
+        return std::nullopt;
+    counters_.added++;
     return next_number(*s);
 }
 

@@ -22,6 +22,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "mavbond/stream_holes.hpp"
@@ -36,6 +37,7 @@ public:
         uint64_t late_filled = 0;  // delivered after a later frame, in their hole
         uint64_t unplaced = 0;     // delivered before dedup could place them (given the next number)
         uint64_t untracked = 0;    // frames of sources beyond the table (left alone)
+        uint64_t added = 0;        // frames mavbond added to a source's stream
     };
 
     static constexpr uint32_t kMaxSources = 64;
@@ -49,6 +51,9 @@ public:
     /// A frame the bond delivers without a position (dedup could not place it yet): it goes
     /// out with the next number, leaving the holes as they are.
     uint8_t deliver_unplaced(uint8_t sysid, uint8_t compid, uint8_t seq);
+    /// A frame mavbond adds to a source's stream (a link event told as the vehicle): the next
+    /// number, so a GCS counts it in sequence; nullopt before the source's first frame.
+    std::optional<uint8_t> add(uint8_t sysid, uint8_t compid);
 
     const Counters& counters() const { return counters_; }
 

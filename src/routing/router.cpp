@@ -1,12 +1,19 @@
 #include "routing/router.h"
 
 #include <algorithm>
+#include <cstring>
 
 #include "core/log.h"
+#include "core/plural.h"
 #include "mavlink/frame_parser.h"
+#include "mavlink/frame_writer.h"
 #include "mavlink/radio_status.h"
 
 namespace mavbond {
+
+namespace {
+constexpr uint32_t kMsgHeartbeat = 0;
+}  // namespace
 
 Router::Router(EventLoop& loop, Duration route_timeout) : loop_(loop), route_timeout_(route_timeout) {}
 
@@ -75,7 +82,7 @@ void Router::ingress(ReceivedBatch& batch) {
             Bond& bond = bonds_[input->bond_index_];
             for (size_t i = 0; i < batch.size(); i++) {
                 const ReceivedFrame& r = batch[i];
-                bond.heard(slot(*r.from).member, r.arrival);
+                heard(bond, slot(*r.from).member, r);
                 bond.wait(r, wait_order_++, false);
             }
             return;
@@ -90,7 +97,7 @@ void Router::ingress(ReceivedBatch& batch) {
             continue;
         }
         Bond& bond = bonds_[from.bond];
-        bond.heard(from.member, r.arrival);
+        heard(bond, from.member, r);
         if (bond.must_wait(r.arrival, polled(), loop_.all_reported())) {
             // A byte stream reuses its buffer at its next read: the frame is copied aside.
             bond.wait(r, wait_order_++, true);
@@ -110,6 +117,14 @@ void Router::end_batch() {
         dirty_.pop_back();
         link->flush();
     }
+    // Nothing is lent from the arena any more (written, or copied into a queue or a budget).
+    sign_chunk_ = sign_used_ = 0;
+    routing_++;
+}
+
+std::shared_ptr<BondSigning> Router::bond_signing(const std::string& bond) {
+    uint32_t b = bond_index(bond);
+    return b == kNoBond ? nullptr : bonds_[b].signing();
 }
 
 // --- bonds and links -----------------------------------------------------------------------
@@ -127,6 +142,12 @@ void Router::replace_bonds(const Config& config) {
             log_info("bond %s: standby continues %s", bond.name().c_str(),
                      bond.standby()->active() ? "active" : "in standby");
     }
+    egress_.assign(bonds_.size(), Egress{});
+    for (size_t b = 0; b < bonds_.size(); b++) {
+        egress_[b].router = this;
+        egress_[b].bond = static_cast<uint32_t>(b);
+        egress_[b].numbering = bonds_[b].numbering();
+    }
     place_links();
 }
 
@@ -137,6 +158,7 @@ void Router::place_links() {
         s.bond = bond_index(s.link->bond());
         s.member = s.bond == kNoBond ? Bond::kNoMember
                                      : bonds_[s.bond].member_index(s.link->endpoint_name());
+        s.signs = s.bond != kNoBond && bonds_[s.bond].signs(s.link->endpoint_name());
     }
     for (Bond& b : bonds_)
         b.inputs.clear();
@@ -145,6 +167,32 @@ void Router::place_links() {
         if (in->bond_index_ != kNoBond)
             bonds_[in->bond_index_].inputs.push_back(in);
     }
+    mark_standby(kNoBond);
+}
+
+void Router::mark_standby(uint32_t bond) {
+    for (Slot& s : slots_) {
+        if (!s.link || (bond != kNoBond && s.bond != bond))
+            continue;
+        const Standby* standby = s.bond == kNoBond ? nullptr : bonds_[s.bond].standby();
+        s.link->set_standby(standby && s.member != Bond::kNoMember && standby->metered(s.member) &&
+                            !standby->active());
+    }
+}
+
+bool Router::member_account(uint32_t bond, uint32_t member, Standby::Account& out) const {
+    out = Standby::Account{};
+    bool exact = false;
+    for (const Slot& s : slots_) {
+        if (!s.link || s.bond != bond || s.member != member || !s.link->account().exact())
+            continue;
+        const LinkAccount& a = s.link->account();
+        exact = true;
+        out.expected += a.expected();
+        out.received += a.received();
+        out.at = std::max(out.at, a.last_marker());
+    }
+    return exact;
 }
 
 uint32_t Router::bond_index(const std::string& name) const {
@@ -182,7 +230,17 @@ void Router::learn(Slot& from, uint8_t sysid, uint8_t compid, TimePoint now) {
             return;
         }
     }
-    from.routes.push_back(Route{sysid, compid, now});
+    if (from.routes.size() < kMaxRoutesPerLink) {
+        from.routes.push_back(Route{sysid, compid, now});
+        return;
+    }
+    // Full: the route heard least recently makes room (counted on the link). A sender cycling
+    // through ids churns its own link's table only; a frame to a forgotten target goes to
+    // every link, as one to a target never heard.
+    auto oldest = std::min_element(from.routes.begin(), from.routes.end(),
+                                   [](const Route& a, const Route& b) { return a.last_heard < b.last_heard; });
+    *oldest = Route{sysid, compid, now};
+    from.link->route_evicted();
 }
 
 bool Router::knows(const Link& link, uint8_t sysid, uint8_t compid) const {
@@ -285,11 +343,21 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
         ReceivedFrame& r = *frames[i];
         Slot& from = slots_[r.from->id()];
         // Only a frame whose CRC was checked may teach a route: noise never creates one.
-        if (r.frame.crc_checked)
+        if (r.frame.crc_checked) {
             learn(from, r.frame.sysid, r.frame.compid, r.arrival);
+            if (r.frame.msgid == kMsgHeartbeat)
+                note_heartbeat(from, r.frame);
+            if (r.frame.sysid == own_sysid_ && r.frame.compid == own_compid_) {
+                if (own_heard_.count++ == 0) {
+                    own_heard_.first = r.arrival;
+                    own_heard_.link = r.from->name();
+                }
+                own_heard_.last = r.arrival;
+            }
+        }
         if (!r.routed)
             continue;
-        if (from.bond != kNoBond && standby_sees(from, r))
+        if (standby_sees(from, r))
             continue;
         const FrameFilter::Ingress& v = verdicts_[i];
         bool pass = v.pass;
@@ -298,6 +366,10 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
             bonds_[from.bond].foreign_radio_status++;
             pass = false;
         }
+        // A signed frame is delivered once, whatever dedup remembers (bond_signing.h).
+        if (pass && r.signed_id.known && from.bond != kNoBond && bonds_[from.bond].signing() &&
+            !bonds_[from.bond].signing()->first_delivery(r.signed_id))
+            pass = false;
         if (from.bond != kNoBond && bonds_[from.bond].renumbers())
             bonds_[from.bond].renumber(r.frame, pass, v.bond_pos, r.arrival);
         if (pass)
@@ -305,13 +377,31 @@ void Router::handle(ReceivedFrame* const* frames, size_t count) {
     }
 }
 
+void Router::note_heartbeat(const Slot& from, const Frame& frame) {
+    // custom_mode (4), type, autopilot, ...; a v2 payload may end early (its zeros trimmed).
+    auto byte = [&](size_t i) { return i < frame.payload.size() ? frame.payload[i] : uint8_t{0}; };
+    constexpr uint8_t kTypeGcs = 6, kAutopilotInvalid = 8;
+    if (byte(4) == kTypeGcs || byte(5) == kAutopilotInvalid)
+        return;
+    if (from.bond == kNoBond)
+        local_autopilot_ = true;
+    else
+        bonds_[from.bond].heard_autopilot(frame.sysid, frame.compid);
+}
+
 bool Router::standby_sees(const Slot& from, const ReceivedFrame& r) {
-    Standby* standby = bonds_[from.bond].standby();
-    if (!standby)
+    Standby* standby = from.bond == kNoBond ? nullptr : bonds_[from.bond].standby();
+    if (standby)
+        standby->received(from.member, r.step, r.arrival);
+    if (!Standby::is_report(r.frame))
         return false;
-    standby->received(from.member, r.step, r.arrival);
-    if (!standby->take_report(r.frame, r.arrival))
-        return false;
+    // A report is a gateway's to the other gateway of its bond: one from outside (a GCS port)
+    // would steer the bond it is routed into.
+    if (!standby) {
+        standby_reports_dropped_++;
+        return true;
+    }
+    standby->take_report(from.member, r.frame, r.arrival);
     // A report may say the free links are failing: act on it at once, not at the next tick.
     judge_standby(from.bond, r.arrival);
     return true;
@@ -322,19 +412,92 @@ void Router::judge_standby(uint32_t bond, TimePoint now) {
     const uint64_t to_standby = standby.counters().to_standby;
     if (standby.judge(now)) {
         uint64_t resent = resend_held(bond, now);
-        log_notice("bond %s: metered links active (the free links are failing); %llu frames "
-                   "standby held back resent",
-                   bonds_[bond].name().c_str(), static_cast<unsigned long long>(resent));
+        log_notice("bond %s: metered links active (the free links are failing); %s standby "
+                   "held back resent",
+                   bonds_[bond].name().c_str(), plural(resent, "frame").c_str());
     } else if (standby.counters().to_standby != to_standby) {
         log_notice("bond %s: metered links back in standby (the free links are healthy)",
                    bonds_[bond].name().c_str());
     }
+    mark_standby(bond);
 }
 
-void Router::deliver(const Frame& frame, Slot& to) {
-    if (filter_ && !filter_->on_egress(frame, *to.link))
+uint8_t* Router::sign_room() {
+    if (sign_used_ + kMaxFrameLen > kSignChunkBytes) {
+        sign_chunk_++;
+        sign_used_ = 0;
+    }
+    if (sign_chunk_ == sign_chunks_.size())  // more in one batch than ever: a new high
+        sign_chunks_.push_back(std::make_unique<std::array<uint8_t, kSignChunkBytes>>());
+    return sign_chunks_[sign_chunk_]->data() + sign_used_;
+}
+
+const Frame* Router::signed_for(const Frame& frame, uint32_t bond_index) {
+    Bond& bond = bonds_[bond_index];
+    Bond::SignedCopy& copy = bond.signed_copy;
+    if (copy.routing != routing_) {
+        copy.routing = routing_;
+        uint8_t* out = sign_room();
+        const size_t n = bond.signing()->sign(frame.bytes, std::span<uint8_t>(out, kMaxFrameLen));
+        copy.refused = n == 0;
+        if (n != 0) {
+            sign_used_ += n;
+            copy.frame = frame;
+            copy.frame.bytes = std::span<const uint8_t>(out, n);
+            copy.frame.payload = std::span<const uint8_t>(out + kHeaderLenV2, frame.payload.size());
+            copy.frame.incompat_flags |= kIncompatSigned;
+        }
+    }
+    return copy.refused ? nullptr : &copy.frame;
+}
+
+BondCopy* Router::egress_copy(const Frame& frame, const Slot& to, uint64_t ticket) {
+    if (to.bond == kNoBond)
+        return nullptr;
+    Egress& e = egress_[to.bond];
+    if (e.routing != routing_) {
+        e.routing = routing_;
+        e.routed = frame;
+        e.made = false;
+        e.ticket = ticket != 0 ? ticket : bonds_[to.bond].numbering()->issue(frame);
+    }
+    return e.ticket != 0 ? &e : nullptr;
+}
+
+const Frame* Router::Egress::now(bool signed_link) {
+    if (!made) {
+        made = true;
+        const uint8_t n = numbering->number(ticket, routed.sysid, routed.compid);
+        uint8_t* out = router->sign_room();
+        std::memcpy(out, routed.bytes.data(), routed.bytes.size());
+        router->sign_used_ += routed.bytes.size();
+        numbered = routed;
+        numbered.bytes = std::span<const uint8_t>(out, routed.bytes.size());
+        numbered.payload = std::span<const uint8_t>(out + (routed.payload.data() - routed.bytes.data()),
+                                                    routed.payload.size());
+        rewrite_seq_in_place(numbered, n);
+    }
+    return signed_link ? router->signed_for(numbered, bond) : &numbered;
+}
+
+void Router::deliver(const Frame& frame, Slot& to, uint64_t ticket) {
+    if (BondCopy* copy = egress_copy(frame, to, ticket)) {
+        // The link numbers (and signs) what it sends of it: Egress::now, or its held copy.
+        if (filter_ && !filter_->on_egress(frame, *to.link))
+            return;
+        if (to.link->send(frame, copy))
+            dirty_.push_back(to.link);
         return;
-    if (to.link->send(frame))
+    }
+    const Frame* out = &frame;
+    if (to.signs && !frame.is_signed()) {
+        out = signed_for(frame, to.bond);
+        if (!out)
+            return;  // MAVLink 1: not on a signed link (counted once for the bond)
+    }
+    if (filter_ && !filter_->on_egress(*out, *to.link))
+        return;
+    if (to.link->send(*out))
         dirty_.push_back(to.link);
 }
 
@@ -350,6 +513,7 @@ void Router::route(const ReceivedFrame& received) {
     const Frame& frame = received.frame;
     const Slot& from = slots_[received.from->id()];
     frames_routed_++;
+    begin_routing();
 
     if (!frame.is_broadcast()) {
         auto ts = static_cast<uint8_t>(frame.target_system);
@@ -387,6 +551,7 @@ void Router::route(const ReceivedFrame& received) {
 }
 
 void Router::inject(const Frame& frame, Reach reach) {
+    begin_routing();
     for (Slot& to : slots_) {
         if (!to.link)
             continue;
@@ -400,6 +565,12 @@ void Router::inject(const Frame& frame, Reach reach) {
             break;
         case Reach::OneBond:
             sends = to.bond == reach.bond;
+            break;
+        case Reach::BondRouted:
+            sends = to.bond == reach.bond && bond_lets_send(to, frame);
+            break;
+        case Reach::LikeBond:
+            sends = to.bond != reach.bond && bond_lets_send(to, frame);
             break;
         }
         if (sends)
@@ -423,16 +594,17 @@ uint64_t Router::resend_held(uint32_t bond, TimePoint now) {
     if (!standby)
         return 0;
     uint64_t sent = 0;
-    standby->take_held(now, [&](uint32_t member, std::span<const uint8_t> bytes) {
+    standby->take_held(now, [&](uint32_t member, std::span<const uint8_t> bytes, uint64_t ticket) {
         // Parsed back as it came (it was a routed frame): the links take a Frame.
         ParserCounters counters;
         DatagramParser parser(bytes, UnknownIdPolicy::Forward, counters);
         Frame frame;
         if (!parser.next(frame))
             return;
+        begin_routing();  // signed afresh: a new timestamp for the new copy
         for (Slot& to : slots_) {
             if (to.link && to.bond == bond && to.member == member) {
-                deliver(frame, to);
+                deliver(frame, to, ticket);  // the number its first copy took, if one went
                 sent++;
             }
         }

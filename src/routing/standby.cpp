@@ -1,10 +1,10 @@
 #include "routing/standby.h"
 
 #include <algorithm>
-#include <cctype>
 #include <cstdlib>
 #include <cstring>
 
+#include "mavlink/message_table.h"
 #include "routing/local_source.h"
 #include "routing/router.h"
 
@@ -13,15 +13,65 @@ namespace mavbond {
 Standby::Standby(const BondConfig& bond, const std::vector<const EndpointConfig*>& members,
                  const TxClassesConfig& classes, TimePoint now)
     : classes_(classes), failover_loss_(bond.failover_loss), failback_loss_(bond.failback_loss),
-      failback_after_(bond.failback_after), resend_(bond.resend), started_(now) {
+      failback_after_(bond.failback_after), resend_(bond.resend),
+      silence_([&] {
+          std::vector<std::string> names;
+          for (const EndpointConfig* ep : members)
+              names.push_back(ep->name);
+          return names;
+      }(), now),
+      started_(now) {
     for (const EndpointConfig* ep : members) {
         Member& m = members_.emplace_back();
         m.name = ep->name;
         m.metered = ep->metered;
         m.carries = ep->standby_classes;
+        m.out = ep->filter_out;
+        free_filters_ = free_filters_ || (!m.metered && !(m.out == MessageFilterConfig{}));
     }
     if (resend_ > Duration::zero())
         held_.resize(kHeldCapacity);
+}
+
+bool Standby::a_free_member_carries(uint32_t msgid) const {
+    return std::any_of(members_.begin(), members_.end(),
+                       [msgid](const Member& m) { return !m.metered && m.out.passes(msgid); });
+}
+
+std::string Standby::carried_in_standby(uint32_t member) const {
+    std::string text;
+    for (size_t c = 0; c < kTxClassCount; c++) {
+        if (members_[member].carries >> c & 1u)
+            text += (text.empty() ? "" : ", ") + std::string(kTxClassNames[c]);
+    }
+    if (text.empty())
+        text = "nothing of its own";
+    // The messages the free members' lists name that none of them may carry (with allow lists
+    // on every free member, also any message none of them allows).
+    std::vector<uint32_t> named;
+    bool all_allow = free_filters_;
+    for (const Member& m : members_) {
+        if (m.metered)
+            continue;
+        named.insert(named.end(), m.out.block.begin(), m.out.block.end());
+        named.insert(named.end(), m.out.allow.begin(), m.out.allow.end());
+        all_allow = all_allow && !m.out.allow.empty();
+    }
+    std::sort(named.begin(), named.end());
+    named.erase(std::unique(named.begin(), named.end()), named.end());
+    std::string only_here;
+    for (uint32_t id : named) {
+        if (!a_free_member_carries(id) &&
+            !(members_[member].carries >> static_cast<unsigned>(classes_.class_of(id)) & 1u)) {
+            const MessageInfo* info = find_message(id);
+            only_here += (only_here.empty() ? "" : ", ") + (info ? std::string(info->name) : std::to_string(id));
+        }
+    }
+    if (all_allow)
+        only_here += std::string(only_here.empty() ? "" : ", ") + "any message no free member allows";
+    if (!only_here.empty())
+        text += "; and " + only_here + ", which no free member may carry (allow_out, block_out)";
+    return text;
 }
 
 bool Standby::continue_from(const Standby& old) {
@@ -36,6 +86,9 @@ bool Standby::continue_from(const Standby& old) {
         members_[i].carries = carries;
     }
     peer_ = old.peer_;
+    silence_ = old.silence_;
+    peer_resend_ = old.peer_resend_;
+    peer_resend_announced_ = old.peer_resend_announced_;
     started_ = old.started_;  // the loss buckets count from it
     last_report_ = old.last_report_;
     active_ = old.active_;
@@ -52,7 +105,8 @@ bool Standby::continue_from(const Standby& old) {
     return true;
 }
 
-void Standby::hold(uint32_t member, const Frame& frame, uint64_t route, TimePoint now) {
+void Standby::hold(uint32_t member, const Frame& frame, uint64_t route, uint64_t ticket,
+                   TimePoint now) {
     counters_.withheld++;
     if (held_.empty())
         return;
@@ -70,6 +124,7 @@ void Standby::hold(uint32_t member, const Frame& frame, uint64_t route, TimePoin
     held_count_++;
     h.at = now;
     h.route = route;
+    h.ticket = ticket;
     h.member = member;
     h.len = static_cast<uint16_t>(frame.bytes.size());
     std::memcpy(h.bytes.data(), frame.bytes.data(), frame.bytes.size());
@@ -99,30 +154,67 @@ void Standby::received(uint32_t member, const StreamStep& step, TimePoint arriva
     size_t b = static_cast<size_t>(m.epoch % kBuckets);
     m.received[b]++;
     m.lost[b] += step.lost;
-    if (arrival > m.last_arrival) {
-        if (m.last_arrival != TimePoint{}) {
-            double gap = static_cast<double>((arrival - m.last_arrival).count());
-            m.gap_ns = m.gap_ns == 0 ? gap : 0.9 * m.gap_ns + 0.1 * gap;
-        }
-        m.last_arrival = arrival;
+    if (m.first_arrival == TimePoint{})
+        m.first_arrival = arrival;
+}
+
+void Standby::accounted(uint32_t member, const Account& account) {
+    if (member >= members_.size() || account.at == TimePoint{})
+        return;
+    Member& m = members_[member];
+    const size_t n = m.accounts.size();
+    if (m.accounts_count != 0) {
+        const Account& newest = m.accounts[(m.accounts_head + n - 1) % n];
+        if (account.at == newest.at)
+            return;  // no marker since
+        if (account.expected < newest.expected || account.received < newest.received)
+            m.accounts_count = 0;  // a link of the member went away: its sums start again
     }
+    m.accounts[m.accounts_head] = account;
+    m.accounts_head = (m.accounts_head + 1) % n;
+    m.accounts_count = std::min(m.accounts_count + 1, n);
+}
+
+int32_t Standby::account_permille(const Member& m, TimePoint now) {
+    if (m.accounts_count == 0)
+        return -1;
+    const size_t n = m.accounts.size();
+    const Account& newest = m.accounts[(m.accounts_head + n - 1) % n];
+    if (now - newest.at > 2 * kLossWindow)
+        return -1;  // the far side stopped counting: not a figure of now
+    // From the latest marker at least a window before the newest (else the oldest remembered).
+    const Account* from = &m.accounts[(m.accounts_head + n - m.accounts_count) % n];
+    for (size_t i = 2; i <= m.accounts_count; i++) {
+        const Account& a = m.accounts[(m.accounts_head + n - i) % n];
+        if (newest.at - a.at >= kLossWindow) {
+            from = &a;
+            break;
+        }
+    }
+    const auto expected = static_cast<int64_t>(newest.expected - from->expected);
+    // Below 0 while a frame written after a marker overtook it (a reordering link).
+    const int64_t lost =
+        std::max<int64_t>(expected - static_cast<int64_t>(newest.received - from->received), 0);
+    if (expected < kMinExpected)
+        return 0;
+    return static_cast<int32_t>(std::min<int64_t>(lost * 1000 / expected, 1000));
 }
 
 int32_t Standby::measured_permille(uint32_t member, TimePoint now, TimePoint last_heard) {
     Member& m = members_[member];
-    // Silent after four usual gaps: a 124 frames/s radio in a quarter second, a side that
-    // hears a HEARTBEAT and a report a second in three.
-    // Until two frames came, the usual gap is unknown: the longest wait.
-    const Duration silence =
-        m.gap_ns == 0 ? Duration(kMaxSilence)
-                      : std::clamp(Duration(static_cast<int64_t>(4 * m.gap_ns)),
-                                   Duration(kMinSilence), Duration(kMaxSilence));
-    // A link never heard is silent once the bond has waited as long as for any (the peer
-    // may be starting, and its first frame may come over the other link first).
-    if (last_heard == TimePoint{})
-        return now - started_ > kMaxSilence ? 1000 : 0;
-    if (now - last_heard > silence)
+    // A link never heard is silent once the peer, heard on another link, has had kMaxSilence
+    // to use it too (counted from our start, a peer that starts a little later had its radio
+    // reported silent, and the metered link active for failback_after).
+    if (silence_.judge(member, last_heard, now, kMinSilence, kMaxSilence).silent)
         return 1000;
+    if (last_heard == TimePoint{})
+        return 0;
+    if (int32_t by_markers = account_permille(m, now); by_markers >= 0)
+        return by_markers;
+    // No markers yet: a far mavbond's first are on their way, and its sequence gaps would
+    // count what it chose not to send (a budget's thinning) as loss.
+    if (m.accounts_count == 0 && now - m.first_arrival < kAwaitMarkers)
+        return 0;
     if (now >= started_)
         roll(m, bucket_of(now));
     int64_t received = 0, lost = 0;
@@ -138,8 +230,14 @@ int32_t Standby::measured_permille(uint32_t member, TimePoint now, TimePoint las
     return static_cast<int32_t>(lost * 1000 / (received + lost));
 }
 
+void Standby::heard(const std::vector<TimePoint>& last_heard, TimePoint now) {
+    for (uint32_t m = 0; m < members_.size() && m < last_heard.size(); m++)
+        silence_.heard(m, last_heard[m], now);
+}
+
 std::vector<Standby::Report> Standby::reports(TimePoint now,
                                               const std::vector<TimePoint>& last_heard) {
+    heard(last_heard, now);
     std::vector<Report> out;
     bool changed = now - last_report_ >= kReportEvery;
     for (uint32_t i = 0; i < members_.size(); i++) {
@@ -164,42 +262,73 @@ std::vector<Standby::Report> Standby::reports(TimePoint now,
     return out;
 }
 
-bool Standby::take_report(const Frame& frame, TimePoint arrival) {
+std::optional<Standby::Report> Standby::resend_announcement(TimePoint now) {
+    if (last_announced_ != TimePoint::min() && now - last_announced_ < kAnnounceEvery)
+        return std::nullopt;
+    last_announced_ = now;
+    counters_.reports_sent++;
+    Report r;
+    std::memcpy(r.name.data(), kResendName, std::min(std::strlen(kResendName), kNameLen));
+    r.permille = static_cast<int32_t>(std::chrono::duration_cast<milliseconds>(resend_).count());
+    return r;
+}
+
+bool Standby::is_report(const Frame& frame) {
+    const size_t prefix = std::strlen(kNamePrefix);
+    // A judged link's loss ("mbl:...") or the far side's resend ("mbp:resend").
     // time_boot_ms (4), value (4), name (10); a v2 payload may end early (its zeros trimmed).
-    if (frame.msgid != kMsgNamedValueInt || frame.payload.size() < 8 + std::strlen(kNamePrefix))
-        return false;
+    return frame.msgid == kMsgNamedValueInt && frame.payload.size() >= 8 + prefix &&
+           (std::memcmp(frame.payload.data() + 8, kNamePrefix, prefix) == 0 ||
+            (frame.payload.size() >= 8 + std::strlen(kResendName) &&
+             std::memcmp(frame.payload.data() + 8, kResendName, std::strlen(kResendName)) == 0));
+}
+
+void Standby::take_report(uint32_t member, const Frame& frame, TimePoint arrival) {
+    const size_t prefix = std::strlen(kNamePrefix);
     const uint8_t* p = frame.payload.data();
-    if (std::memcmp(p + 8, kNamePrefix, std::strlen(kNamePrefix)) != 0)
-        return false;
-    size_t len = std::min(frame.payload.size() - 8, kNameLen);
-    std::string name(reinterpret_cast<const char*>(p + 8), len);
-    name = name.substr(std::strlen(kNamePrefix), name.find('\0') - std::strlen(kNamePrefix));
-    // An endpoint name's characters only: anything else is not a report of ours.
-    for (char c : name) {
-        if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '.' || c == '-'))
-            return false;
+    // The far side sends each report on every member: which ones brought this one says which
+    // links carry what it writes.
+    silence_.report(member, FrameSource{frame.sysid, frame.compid, frame.seq}, arrival);
+    if (frame.payload.size() >= 8 + std::strlen(kResendName) &&
+        std::memcmp(p + 8, kResendName, std::strlen(kResendName)) == 0) {
+        int32_t ms;
+        std::memcpy(&ms, p + 4, 4);
+        peer_resend_ = milliseconds(std::clamp(ms, 0, 10'000));  // resend is at most 10 s
+        peer_resend_announced_ = true;
+        counters_.reports_received++;
+        return;
     }
-    if (name.empty())
-        return false;
+    const size_t len = std::min(frame.payload.size() - 8, kNameLen);
+    std::string_view name(reinterpret_cast<const char*>(p + 8 + prefix), len - prefix);
+    name = name.substr(0, name.find('\0'));
+    counters_.reports_received++;
+    // Which free member it names: the first six characters of its endpoint name.
+    auto named = std::find_if(members_.begin(), members_.end(), [&](const Member& m) {
+        return !m.metered && !name.empty() &&
+               reported_name(m.name) == name;
+    });
+    if (named == members_.end()) {
+        counters_.reports_ignored++;
+        return;
+    }
     int32_t value;
     std::memcpy(&value, p + 4, 4);  // little-endian on the wire, as on every host mavbond runs on
     value = std::clamp(value, 0, 1000);
-    counters_.reports_received++;
-    auto it = std::find_if(peer_.begin(), peer_.end(), [&](const PeerLink& l) { return l.name == name; });
-    if (it == peer_.end()) {
-        if (peer_.size() >= 16)
-            return true;  // a peer with more free links than any bond has: the rest unjudged
-        it = peer_.insert(peer_.end(), PeerLink{name, value, arrival});
-    }
+    auto it = std::find_if(peer_.begin(), peer_.end(),
+                           [&](const PeerLink& l) { return l.name == name; });
+    if (it == peer_.end())
+        it = peer_.insert(peer_.end(), PeerLink{std::string(name), value, arrival});
     // The copies of one report come over every link: the latest arrival wins, with its value.
     if (arrival >= it->heard) {
         it->permille = value;
         it->heard = arrival;
     }
-    return true;
 }
 
 bool Standby::judge(TimePoint now) {
+    peer_.erase(std::remove_if(peer_.begin(), peer_.end(),
+                               [&](const PeerLink& l) { return now - l.heard > kPeerExpiry; }),
+                peer_.end());
     // The best free link the peer reports now; none heard lately counts as all failing.
     int32_t best = 1000;
     bool heard = false;
@@ -273,10 +402,19 @@ void StandbyMonitor::tick(TimePoint now) {
         if (!standby)
             continue;
         std::vector<TimePoint> heard(bond.members().size());
-        for (uint32_t m = 0; m < heard.size(); m++)
+        for (uint32_t m = 0; m < heard.size(); m++) {
             heard[m] = bond.last_heard(m);
-        for (const Standby::Report& r : standby->reports(now, heard))
+            Standby::Account account;
+            if (router_.member_account(b, m, account))
+                standby->accounted(m, account);
+        }
+        std::vector<Standby::Report> reports = standby->reports(now, heard);
+        for (const Standby::Report& r : reports)
             source_.send_named_value_int(r.name, r.permille, b);
+        if (!reports.empty()) {
+            if (auto r = standby->resend_announcement(now))
+                source_.send_named_value_int(r->name, r->permille, b);
+        }
         router_.judge_standby(b, now);
     }
 }

@@ -1,8 +1,14 @@
 // One plugin source, built once per defect (see meson.build), so the loader's every refusal
 // is proven against a real shared object. Without a DEFECT_* macro it is a good plugin that
 // passes every frame and counts them; with PROVIDES_ALIGNED_POSITIONS it also declares it
-// aligns its bonds' numberings (what `renumber: true` needs).
+// aligns its bonds' numberings (what `renumber: true` needs), with PROVIDES_ACTIVE_LINK that
+// it chooses their active link (what `tx: active` needs).
+//
+// Its code, once loaded, leaves a trace: a constructor (run by dlopen, before any of the
+// host's checks of the descriptor) appends the plugin's name to the file
+// $MAVBOND_ABI_TEST_RAN, so a test proves a refused plugin never ran.
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 
 #include "mavbond/plugin.h"
@@ -13,14 +19,25 @@
 
 namespace {
 
+__attribute__((constructor)) void leave_a_trace() {
+    if (const char* path = std::getenv("MAVBOND_ABI_TEST_RAN")) {
+        if (FILE* f = std::fopen(path, "a")) {
+            std::fprintf(f, "%s\n", PLUGIN_NAME);
+            std::fclose(f);
+        }
+    }
+}
+
 struct Counter {
     unsigned long frames = 0;
 };
 
 int create(const mavbond_host_api* api, mavbond_host* h, const mavbond_config* cfg, void** out,
            char* err, size_t err_len) {
-#ifdef PROVIDES_ALIGNED_POSITIONS
+#if defined(PROVIDES_ALIGNED_POSITIONS)
     api->provides(h, MAVBOND_PROVIDES_ALIGNED_POSITIONS);
+#elif defined(PROVIDES_ACTIVE_LINK)
+    api->provides(h, MAVBOND_PROVIDES_ACTIVE_LINK);
 #else
     (void)h;
 #endif
@@ -92,7 +109,7 @@ mavbond_plugin_descriptor make_descriptor() {
     d.destroy = destroy;
     d.on_ingress = on_ingress;
     d.metrics = metrics;
-#ifdef DEFECT_ABI_VERSION
+#if defined(DEFECT_ABI_VERSION) || defined(DEFECT_DESCRIPTOR_ABI)
     d.abi_version = MAVBOND_PLUGIN_ABI_VERSION + 41;
 #endif
 #ifdef DEFECT_SMALL_STRUCT
@@ -110,6 +127,16 @@ mavbond_plugin_descriptor make_descriptor() {
 const mavbond_plugin_descriptor kDescriptor = make_descriptor();
 
 }  // namespace
+
+// What the host reads from the file before loading it (a plugin built for ABI 4 had none).
+#if defined(DEFECT_ABI_VERSION)
+extern "C" MAVBOND_EXPORT const uint32_t mavbond_plugin_abi_version = MAVBOND_PLUGIN_ABI_VERSION + 41;
+extern "C" MAVBOND_EXPORT const char mavbond_plugin_name[] = PLUGIN_NAME;
+#elif defined(DEFECT_WRONG_NAME)
+MAVBOND_PLUGIN_DATA("somebody_else");
+#elif !defined(DEFECT_NO_ABI_DATA)
+MAVBOND_PLUGIN_DATA(PLUGIN_NAME);
+#endif
 
 #ifndef DEFECT_NO_ENTRY
 extern "C" MAVBOND_EXPORT const mavbond_plugin_descriptor* mavbond_plugin_entry(void) {

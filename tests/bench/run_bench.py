@@ -20,8 +20,13 @@ the median of several trials, the two relays alternating so that the machine's n
 both. Then mavbond runs under valgrind --tool=callgrind with a closed-loop replay of the same
 frames (N and 2N frames: the difference is the per-frame cost without start-up).
 
+Last, bench_signing (C++) gives a signed bond's cost per frame: the sending side's signature,
+the receiving side's check (the hash, the replay window, the signature taken off) for the
+first link's copy and the second's, and an endpoint's check as it was before bonds signed, in
+the thread's CPU time; and the bytes a signature adds to each frame on the radio (13).
+
 Usage: run_bench.py --build BUILD_DIR [--tlog FILE] [--trials N] [--quick] [--no-callgrind]
-                    [--instructions-only]
+                    [--instructions-only] [--signing-only]
 """
 from __future__ import annotations
 
@@ -451,6 +456,8 @@ def main() -> int:
     ap.add_argument("--no-callgrind", action="store_true")
     ap.add_argument("--instructions-only", action="store_true",
                     help="only the callgrind replays: instruction counts, the same on any machine")
+    ap.add_argument("--signing-only", action="store_true",
+                    help="only bench_signing: a signed bond's cost per frame")
     ap.add_argument("--callgrind-frames", type=int, default=3000)
     ap.add_argument("--json", type=Path, help="write every trial's raw figures here")
     args = ap.parse_args()
@@ -488,8 +495,11 @@ def run(args, tmp: Path, t_begin: float) -> int:
     print(f"figures: median of {args.trials} trials, fresh process each, relay/mavbond alternating")
     print()
 
-    if args.instructions_only:
-        run_callgrind(b, args, raw)
+    if args.instructions_only or args.signing_only:
+        if args.instructions_only:
+            run_callgrind(b, args, raw)
+        if args.signing_only:
+            run_signing(b)
         print(f"\nbenchmark time: {time.monotonic() - t_begin:.0f} s")
         return 0
 
@@ -625,10 +635,29 @@ def run(args, tmp: Path, t_begin: float) -> int:
     print(f"  {verdict(rss < T_RSS_KB)} peak RSS at 10k/s, 1 s dedup window < 8 MB: {rss / 1024:.2f} MB")
 
     why(b, args, S, ratios, mr, cg, dp99, rss, raw)
+    run_signing(b)
     print(f"\nbenchmark time: {time.monotonic() - t_begin:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(raw, indent=1, default=str))
     return 0
+
+
+def run_signing(b: Bench) -> None:
+    """bench_signing's table: a signed bond's cost per frame (see the module's docstring)."""
+    exe = b.build / "tests" / "bench" / "bench_signing"
+    if not exe.exists():
+        print(f"\nsigning: {exe} is missing (ninja -C {b.build})")
+        return
+    log("  signing: bench_signing")
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout
+    print("\nsigning (a signed bond; bench_signing, ns per frame in CPU time): check = an "
+          "endpoint's\ncheck as before bonds signed; sign = the sending side, once per frame; "
+          "verify = the\nreceiving side's first copy (hash, replay window, signature off); copy "
+          "= the second link's")
+    for line in out.splitlines():
+        print("  " + line)
+    print("  each signed frame is 13 bytes longer on every signed link (the radio's budget is "
+          "charged them)")
 
 
 def run_callgrind(b: Bench, args, raw: dict) -> dict:

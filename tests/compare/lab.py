@@ -181,8 +181,10 @@ class Ground:
         self.status_path = self.dir / "status.sock"
         eps = [udp_server(l, self.port[l], bond="vehicle") for l in links]
         eps.append(udp_server("gcs", self.p_gcs))
+        # Deliveries are matched by their bytes: the bond does not renumber.
         self.gateway = Gateway(mavbond, self.dir, eps,
-                               bonds=[{"name": "vehicle", "tx": "broadcast"}], filters=filters,
+                               bonds=[{"name": "vehicle", "tx": "broadcast", "renumber": False}],
+                               filters=filters,
                                name="ground", plugin_dir=plugin_dir, log_level="info",
                                status_socket=str(self.status_path))
         self.watch_switches = any(f["plugin"] == "linkswitch" for f in filters)
@@ -338,7 +340,8 @@ def run(sc: S.Scenario, mavbond: str, plugin_dir: str, stream, workdir: Path,
     air_eps = [udp_server("autopilot", p_auto)]
     air_eps += [udp_client(l.name, listen[l.name], bond="ground") for l in sc.links]
     air_filters = [{"plugin": "dedup", "bonds": ["ground"]}] if len(sc.links) > 1 else []
-    air = Gateway(mavbond, workdir, air_eps, bonds=[{"name": "ground", "tx": "broadcast"}],
+    air = Gateway(mavbond, workdir, air_eps,
+                  bonds=[{"name": "ground", "tx": "broadcast", "renumber": False}],
                   filters=air_filters, name="air", plugin_dir=plugin_dir, log_level="info")
     spec = []
     for l in sc.links:

@@ -97,7 +97,8 @@ def run_condition(mavbond: str, plugin_dir: str, name: str, scale: float, workdi
     gateways, receivers, status = [], {}, {}
     for m, (_, members, lte_keys, bond_keys) in MODES.items():
         p = ports[m]
-        bond = {"name": "vehicle", "tx": "broadcast", **bond_keys}
+        # Deliveries are matched by their bytes: the bonds do not renumber.
+        bond = {"name": "vehicle", "tx": "broadcast", "renumber": False, **bond_keys}
         g_eps = [udp_server("radio", p["g_radio"], bond="vehicle")]
         a_eps = [udp_server("ap", p["ap"]), udp_client("radio", p["e_radio"], bond="vehicle")]
         if "lte" in members:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 from helpers import (HOST, REPO, Daemon, FrameMaker, free_port, split_stream,  # noqa: F401
-                     udp_client, udp_server, _yaml_scalar)
+                     terminate, udp_client, udp_server, _yaml_scalar)
 
 TOOLS = REPO / "tests" / "tools"
 LINKEMU = TOOLS / "linkemu.py"
@@ -107,13 +107,7 @@ class _Linkemu:
 
     def _terminate(self) -> List[dict]:
         """SIGTERM (once), and the JSON lines it printed."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc)
         if self.proc is not None and not self._out.closed:
             self._out.close()
             self._err.close()
@@ -233,8 +227,18 @@ class Receiver:
             time.sleep(quiet)
 
     def stop(self) -> List[bytes]:
+        """Stops the thread, then takes what is still in the socket: every datagram that
+        reached it before the call is kept (after the sender stopped, that is all it sent)."""
         self._stop = True
         self._t.join(2)
+        self.sock.setblocking(False)
+        while True:
+            try:
+                dg = self.sock.recv(65536)
+            except OSError:  # nothing left (or closed)
+                break
+            now = time.monotonic()
+            self.frames.extend((now, f) for f in split_stream(dg))
         return [f for _, f in self.frames]
 
 
@@ -286,6 +290,17 @@ def gcs_hello(sock: socket.socket, port: int, sysid: int = 255, compid: int = 19
     hb = FrameMaker(sysid, compid).heartbeat(type_=6)
     sock.sendto(hb, (HOST, port))
     return hb
+
+
+def wait_for(predicate, what: str, timeout: float = 60.0):
+    """predicate()'s first true value, polled every 50 ms; fails after `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
 
 
 def multiset_diff(want: Iterable[bytes], got: Iterable[bytes]) -> Tuple[Counter, Counter]:
@@ -368,6 +383,77 @@ class Ticker:
     def stop(self):
         self._stop.set()
         self._t.join(2)
+
+
+# --- what a link carried ---------------------------------------------------------------------
+
+def msgid(frame: bytes) -> int:
+    if frame[0] == 0xFD:
+        return frame[7] | frame[8] << 8 | frame[9] << 16
+    return frame[5]
+
+
+def frames_of(datagram: bytes):
+    """The MAVLink frames of one datagram (v1 or v2, unsigned)."""
+    i = 0
+    while i < len(datagram):
+        if datagram[i] == 0xFD:
+            n = 12 + datagram[i + 1] + (13 if datagram[i + 2] & 1 else 0)
+        elif datagram[i] == 0xFE:
+            n = 8 + datagram[i + 1]
+        else:
+            return
+        yield datagram[i:i + n]
+        i += n
+
+
+class Sniffer(threading.Thread):
+    """Everything a link's emulator forwarded (its tee, or its down tee), in order; started."""
+
+    def __init__(self, sock: socket.socket):
+        super().__init__(daemon=True)
+        self.sock, self.frames, self.stop_flag = sock, [], threading.Event()
+        self.sock.settimeout(0.05)
+
+    def run(self):
+        while not self.stop_flag.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except socket.timeout:
+                continue
+            self.frames += list(frames_of(data))
+
+    def stop(self):
+        self.stop_flag.set()
+        self.join()
+        return self.frames
+
+
+
+def sniffer(lab, port: int) -> "Sniffer":
+    """A started Sniffer on `port` (a link emulator's tee address)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+    sock.bind((HOST, port))
+    lab.socks.append(sock)
+    s = Sniffer(sock)
+    s.start()
+    return s
+
+
+def carried(stream: Sequence[bytes], sniffed: Sequence[bytes]) -> List[int]:
+    """The indices of `stream` a FIFO link carried, from what its sniffer saw, in order: frames
+    of anyone else in between (the gateways' own: count markers, standby reports) are passed
+    over. A stream frame the sniffer does not have where it would be was dropped."""
+    ours = set(stream)
+    out, j = [], 0
+    for k, f in enumerate(stream):
+        while j < len(sniffed) and sniffed[j] != f and sniffed[j] not in ours:
+            j += 1
+        if j < len(sniffed) and sniffed[j] == f:
+            out.append(k)
+            j += 1
+    return out
 
 
 # --- a group of links in one emulator process -----------------------------------------------

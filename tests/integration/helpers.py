@@ -230,6 +230,35 @@ def corrupt_crc(frame: bytes) -> bytes:
     return bytes(b)
 
 
+# --- processes ------------------------------------------------------------------------------
+
+def terminate(proc: subprocess.Popen, grace: float = 10.0) -> Optional[int]:
+    """SIGTERM, then SIGKILL after `grace` seconds; the exit code (None: never started)."""
+    if proc is None:
+        return None
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+def integration_conftest():
+    """tests/integration/conftest.py as a module, for the stages that reuse its fixtures
+    (tests/peers, tests/sitl): loaded once, under its own name."""
+    import importlib.util
+    if "integration_conftest" not in sys.modules:
+        spec = importlib.util.spec_from_file_location(
+            "integration_conftest", Path(__file__).resolve().parent / "conftest.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["integration_conftest"] = module
+        spec.loader.exec_module(module)
+    return sys.modules["integration_conftest"]
+
+
 # --- the daemon ---------------------------------------------------------------------------
 
 def parse_stats_line(line: str) -> Optional[dict]:
@@ -340,6 +369,19 @@ class Daemon:
                 return cur
             last = cur
         return last
+
+    def wait_stats(self, done: Callable[[Dict[str, dict]], bool],
+                   timeout: float = 30.0) -> Dict[str, dict]:
+        """Stats once done(stats) holds (the daemon took what was sent); fails with the last
+        ones after `timeout`."""
+        deadline = time.monotonic() + timeout
+        while True:
+            st = self.stats()
+            if done(st):
+                return st
+            if time.monotonic() > deadline:
+                raise AssertionError(f"the counters never got there: {st}")
+            time.sleep(0.05)
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM; returns the exit code (fails the test if it does not exit in time)."""
@@ -455,6 +497,39 @@ def status_document(path, timeout: float = 5.0) -> dict:
 def split_stream(data: bytes) -> List[bytes]:
     """Frames of a raw byte stream that holds only whole frames."""
     return [r.data for r in tlog.iter_records_bytes(data, raw=True) if r.kind == "frame"]
+
+
+# --- other users ----------------------------------------------------------------------------
+
+def run_as(uid: int, gid: int, work: Callable[[], str], groups=(),
+           timeout: int = 10) -> Callable[[], str]:
+    """Runs work() in a forked child as uid/gid (with `groups`), at most `timeout` seconds;
+    returns a function that waits for the child and returns what work() returned. (Needs
+    root.)"""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: never returns into pytest
+        code = 1
+        try:
+            os.close(r)
+            signal.alarm(timeout)  # bounded whatever happens
+            os.setgroups(list(groups))
+            os.setgid(gid)
+            os.setuid(uid)
+            os.write(w, work().encode())
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+
+    def result() -> str:
+        with os.fdopen(r, "rb") as f:
+            msg = f.read().decode()
+        _, status = os.waitpid(pid, 0)
+        assert os.waitstatus_to_exitcode(status) == 0, "the child failed"
+        return msg
+
+    return result
 
 
 # --- the daemon seen from /proc ------------------------------------------------------------

@@ -221,3 +221,74 @@ def test_a_budget_changes_on_reload_with_no_restart(start_daemon, pty_pair, tmp_
     print(f"\nreload 2 kB/s -> 20 kB/s mid-stream: every one of {len(control)} commands, "
           f"telemetry {t['frames']} of {n} ({t['thinned']} thinned), the UART opened once")
     assert d.stop() == 0
+
+
+def test_what_a_bond_member_thins_takes_no_number(start_daemon, pty_pair, tmp_path):
+    """The radio as a bond's member (routing/egress_numbering.h), offered twice what it
+    carries: the frames it thins never take a sequence number, so the far side's stream of
+    each source is gapless but for the source's own gap (3 numbers the autopilot skipped,
+    as frames lost on its UART would be), and every frame goes in the source's order. The
+    same stream to a link in no bond keeps the autopilot's numbers: thinned ones are gaps."""
+    bonded, plain = pty_pair(), pty_pair()
+    ap_port = free_port()
+    sock_path = tmp_path / "status.sock"
+    d = start_daemon([uart("radio", bonded.path, baud=57600, tx_rate="baud", bond="vehicle"),
+                      uart("plain", plain.path, baud=57600, tx_rate="baud"),
+                      udp_server("ap", ap_port)],
+                     bonds=[{"name": "vehicle"}], status_socket=str(sock_path))
+    readers = [PtyReader(bonded), PtyReader(plain)]
+    for r in readers:
+        r.start()
+    fm = FrameMaker(1, 1)
+    tele = telemetry_maker(fm)
+    n, skip_at = int(FPS * 3), int(FPS * 1.5)
+    src = udp_socket()
+    t_start = time.monotonic()
+    try:
+        for i in range(n):
+            while time.monotonic() < t_start + i / FPS:
+                time.sleep(0.002)
+            # pymavlink's pack() leaves the counter alone: the source numbers its frames here,
+            # skipping 3 once (its own gap).
+            fm.mav.seq = (i + (3 if i >= skip_at else 0)) % 256
+            src.sendto(tele(i), (HOST, ap_port))
+        while any(time.monotonic() - r.last_byte < 1.5 for r in readers):
+            time.sleep(0.1)
+    finally:
+        for r in readers:
+            r.stop_flag.set()
+            r.join(2)
+        src.close()
+
+    def of_vehicle(reader):
+        return [f for f in split_stream(bytes(reader.data))
+                if (f[5], f[6]) == (1, 1) and f[7] | f[8] << 8 | f[9] << 16 != 252]
+
+    def steps(frames):
+        seqs = [f[4] for f in frames]
+        return [(b - a) % 256 for a, b in zip(seqs, seqs[1:])]
+
+    on_bond, on_plain = of_vehicle(readers[0]), of_vehicle(readers[1])
+    doc = status_document(sock_path)
+    thinned = {e["name"]: e["tx_budget"]["telemetry"]["thinned"] for e in doc["endpoints"]
+               if e["name"] in ("radio", "plain")}
+    assert thinned["radio"] > n // 4 and thinned["plain"] > n // 4, thinned
+    bond_steps = steps(on_bond)
+    assert sorted(set(bond_steps)) == [1, 4] and bond_steps.count(4) == 1, \
+        f"gapless but for the source's 3: {sorted(set(bond_steps))}"
+    # In the source's order: each frame's time field, newest first-only per message.
+    times = [int.from_bytes(f[10:14], "little") for f in on_bond]
+    for m in range(8):
+        mine = [t for t in times if t % 8 == m]
+        assert mine == sorted(mine)
+    plain_steps = steps(on_plain)
+    assert sum(s - 1 for s in plain_steps) >= thinned["plain"], \
+        "a link in no bond keeps the source's numbers: each thinned frame a gap"
+    numbered = next(b for b in doc["bonds"] if b["name"] == "vehicle")["numbering"]
+    assert numbered["numbered"] == len(on_bond), "one number for each frame it sent (its count "\
+        "markers are the link's own)"
+    print(f"\n{n} frames offered at twice the radio's rate: the bond member sent {len(on_bond)} "
+          f"({thinned['radio']} thinned), numbered gapless but for the source's own gap of 3; "
+          f"the link in no bond sent {len(on_plain)} ({thinned['plain']} thinned) with "
+          f"{sum(s - 1 for s in plain_steps)} numbers skipped")
+    assert d.stop() == 0

@@ -247,7 +247,8 @@ def test_thousand_tcp_connects_no_leak(start_daemon):
     up to 20 at a time: afterwards the daemon has exactly the descriptors it had before, about
     the same RSS, and still serves clients."""
     tcp_port = free_port(socket.SOCK_STREAM)
-    d = start_daemon([tcp_server("t", tcp_port)])
+    # Every client of this test comes from 127.0.0.1: up to 20 at a time from one address.
+    d = start_daemon([tcp_server("t", tcp_port, max_clients_per_address=32)])
     pid = d.proc.pid
     hb = FrameMaker(1, 1).heartbeat()
     frames_sent = 0

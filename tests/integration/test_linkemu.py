@@ -618,6 +618,35 @@ def test_replies_flow_back_and_directions_are_independent(emu_factory):
     stranger.close()
 
 
+def test_a_nat_rebinding_moves_the_source_port_once(emu_factory):
+    """request_rebind: B hears A's datagrams from a new source port from then on, every one of
+    them (the rebinding is taken between two datagrams); B's replies to the new port reach A,
+    those to the old one nothing (the NAT gave that mapping up)."""
+    emu, a, b = emu_factory(seed=3)
+    for i in range(10):
+        a.sendto(b"before%d" % i, emu.listen_addr)
+    got = [b.recvfrom(100) for _ in range(10)]
+    old = got[0][1]
+    assert {addr for _, addr in got} == {old} and old[1] == emu.source_addr[1]
+    emu.request_rebind("")
+    until(lambda: emu.links[0].rebinds == 1, "the loop took the rebinding")
+    for i in range(10):
+        a.sendto(b"after%d" % i, emu.listen_addr)
+    after = [b.recvfrom(100) for _ in range(10)]
+    new = after[0][1]
+    assert [d for d, _ in got + after] == [b"before%d" % i for i in range(10)] + \
+        [b"after%d" % i for i in range(10)]
+    link = emu.links[0]    # emu.source_addr is the address it started with
+    assert {addr for _, addr in after} == {new} and new != old and new[1] == link.source_addr[1]
+    b.sendto(b"to-old", old)
+    b.sendto(b"to-new", new)
+    data, _ = a.recvfrom(100)
+    assert data == b"to-new"
+    c = wait_counters(emu, lambda c: c["down"]["forwarded"] == 1)
+    assert c["down"]["received"] == 1 and c["up"]["forwarded"] == 20
+    print(f"\nsource port {old[1]} -> {new[1]}; the reply to the old port went nowhere")
+
+
 def test_sigterm_and_sigusr1_print_counters(emu_proc):
     a, b = udp(), udp()
     p = emu_proc("--listen", f"{HOST}:0", "--forward", f"{HOST}:{port(b)}", "--seed", 1)

@@ -180,23 +180,36 @@ def test_metrics_match_the_status_socket_and_the_links(lab, tmp_path):
             elif isinstance(v, int) and not isinstance(v, bool):
                 assert value(m, f"mavbond_endpoint_{k}_total", **labels) == v, (ep["name"], k)
                 checked += 1
-    assert checked == 3 * 19  # for_each_counter: 16, and resolve_failures, address_changes, peer_rebinds
+    # for_each_counter: 17 (tx_signed too), resolve_failures, address_changes, peer_rebinds,
+    # and what strangers cause: stranger_datagrams, peers_evicted, clients_refused,
+    # clients_idle_closed, routes_evicted; markers_foreign
+    assert checked == 3 * 26
+    for ep in st["endpoints"]:
+        labels = {"endpoint": ep["name"], "kind": ep["kind"], "bond": ep["bond"]}
+        assert value(m, "mavbond_endpoint_open", **labels) == (1 if ep["open"] else 0)
+        assert value(m, "mavbond_endpoint_state", **labels, state=ep["state"]) == 1
 
     filters = {f["name"]: f for f in st["filters"]}
     stats, dedup = filters["stats"]["status"], filters["dedup"]["status"]
     link_frames = {}
     for link in stats["links"]:
-        lbl = {"filter": "stats", "link": link["name"], "bond": "vehicle"}
+        # A series per endpoint: the link's peer address is on the status socket only.
+        assert link["name"].startswith(link["endpoint"] + "@")
+        lbl = {"filter": "stats", "link": link["endpoint"], "bond": "vehicle"}
+        # The test's links send no count markers: the loss is the sequence numbers'.
+        assert link["basis"] == "sequence"
         frames = value(m, "mavbond_stats_link_frames_total", **lbl)
-        expected = value(m, "mavbond_stats_link_expected_frames_total", **lbl)
-        received = value(m, "mavbond_stats_link_received_frames_total", **lbl)
+        expected = value(m, "mavbond_stats_link_expected_frames_total", **lbl, basis="sequence")
+        received = value(m, "mavbond_stats_link_received_frames_total", **lbl, basis="sequence")
         assert frames == link["frames"]
-        assert expected - received == link["lost"]
-        assert value(m, "mavbond_stats_link_loss_ratio", **lbl) * 100 == \
+        assert expected == link["expected"] and expected - received == link["lost"]
+        assert value(m, "mavbond_stats_link_loss_ratio", **lbl, basis="sequence") * 100 == \
             pytest.approx(link["loss_pct"], abs=0.0006)
-        link_frames[link["name"].split("@")[0]] = (frames, expected - received)
+        link_frames[link["endpoint"]] = (frames, expected - received)
         print(f"{link['name']}: loss_ratio "
-              f"{value(m, 'mavbond_stats_link_loss_ratio', **lbl):.4f}")
+              f"{value(m, 'mavbond_stats_link_loss_ratio', **lbl, basis='sequence'):.4f}")
+    assert not any("@" in dict(labels).get("link", "") for _, labels in m["samples"]), \
+        "a peer's address in a metric label"
     # ... and the emulators: frames forwarded, frames lost between the first and last one
     # that got through (one source, one sequence counter).
     for name, c, dropped in (("radio", ca, da), ("lte", cb, db)):
@@ -230,10 +243,10 @@ def test_metrics_match_the_status_socket_and_the_links(lab, tmp_path):
 
     dedup_dups = 0
     for link in dedup["links"]:
-        v = value(m, "mavbond_dedup_duplicates_total", filter="dedup", link=link["name"],
+        v = value(m, "mavbond_dedup_duplicates_total", filter="dedup", link=link["name"].split("@")[0],
                   bond="vehicle")
         assert v == link["duplicates"]
-        assert value(m, "mavbond_dedup_passed_frames_total", filter="dedup", link=link["name"],
+        assert value(m, "mavbond_dedup_passed_frames_total", filter="dedup", link=link["name"].split("@")[0],
                      bond="vehicle") == link["passed"]
         dedup_dups += v
     assert dedup_dups == duplicates
@@ -407,9 +420,12 @@ def dashboard_metric_names() -> set:
     return names
 
 
-def test_dashboard_uses_only_metrics_the_daemon_serves(lab, tmp_path):
+def test_dashboard_uses_only_metrics_the_daemon_serves(lab, pty_pair, tmp_path):
     """The dashboard is valid JSON for Grafana 9+ with a Prometheus datasource variable, and
-    every metric its queries name is served by a daemon running dedup, stats and linkswitch."""
+    every metric its queries name is served by a daemon running dedup, stats and linkswitch,
+    with a metered bond member, a transmit budget and a SiK radio that reports: it has panels
+    for each link's loss (by markers or by sequence), link states, standby, transmit budgets,
+    the radios' signal and link silence."""
     d = json.loads(DASHBOARD.read_text())
     assert d["schemaVersion"] >= 36 and d["panels"]
     ds_vars = [v for v in d["templating"]["list"] if v["type"] == "datasource"]
@@ -420,16 +436,27 @@ def test_dashboard_uses_only_metrics_the_daemon_serves(lab, tmp_path):
     names = dashboard_metric_names()
     assert {"mavbond_stats_link_expected_frames_total",
             "mavbond_stats_bond_delivered_expected_frames_total", "mavbond_dedup_duplicates_total",
-            "mavbond_bond_active_link"} <= names
+            "mavbond_bond_active_link", "mavbond_endpoint_state", "mavbond_standby_active",
+            "mavbond_endpoint_tx_rate_bytes", "mavbond_endpoint_tx_class_thinned_total",
+            "mavbond_endpoint_radio_rssi", "mavbond_endpoint_last_rx_age_seconds"} <= names
+    exprs = [t["expr"] for p in d["panels"] for t in p["targets"]]
+    assert any('basis="markers"' in e and 'basis="sequence"' in e for e in exprs), \
+        "the loss panel reads each link's loss by markers where there are, else by sequence"
 
-    ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "gcs")}
+    ports = {k: free_port() for k in ("a1", "a2", "b1", "b2", "m1", "m2", "gcs")}
     m_port = tcp_port()
+    radio = pty_pair()
     g = lab.gateway([udp_server("a1", ports["a1"], bond="bonded"),
                      udp_server("a2", ports["a2"], bond="bonded"),
                      udp_server("b1", ports["b1"], bond="backup"),
                      udp_server("b2", ports["b2"], bond="backup"),
-                     udp_server("gcs", ports["gcs"])],
-                    bonds=[{"name": "bonded", "tx": "broadcast"}, {"name": "backup", "tx": "active"}],
+                     udp_server("m1", ports["m1"], bond="paid"),
+                     udp_server("m2", ports["m2"], bond="paid", cost="metered"),
+                     udp_server("gcs", ports["gcs"], tx_rate="1MB/s"),
+                     {"name": "r1", "type": "uart", "device": radio.path, "baud": 57600,
+                      "radio_status": "sik", "bond": "radio"}],
+                    bonds=[{"name": "bonded", "tx": "broadcast"}, {"name": "backup", "tx": "active"},
+                           {"name": "paid"}, {"name": "radio"}],
                     filters=[{"plugin": "dedup", "bonds": ["bonded"]},
                              {"plugin": "linkswitch", "bonds": ["backup"]},
                              {"plugin": "stats"}],
@@ -437,8 +464,11 @@ def test_dashboard_uses_only_metrics_the_daemon_serves(lab, tmp_path):
     src = lab.sock()
     frames = [f for _, f in ardupilot_stream(1, seed=3)]
     for f in frames:
-        for k in ("a1", "a2", "b1", "b2"):
+        for k in ("a1", "a2", "b1", "b2", "m1", "m2"):
             src.sendto(f, (HOST, ports[k]))
+    g.wait_log(r"\[uart:r1\] .* open at 57600 baud")
+    sik = FrameMaker(51, 68, v1=True)
+    radio.write_all(sik.pack(sik.mod.MAVLink_radio_status_message(150, 140, 95, 40, 35, 3, 1)))
     deadline = time.monotonic() + 10
     while True:
         m = scrape(m_port)

@@ -25,9 +25,14 @@ GCS = (255, 190)
 class Codec:
     """pymavlink's own encoder and parser (an independent MAVLink stack) for one sender."""
 
-    def __init__(self, sysid: int = 0, compid: int = 0):
+    def __init__(self, sysid: int = 0, compid: int = 0, key: Optional[bytes] = None):
         self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.mav.robust_parsing = True
+        if key is not None:  # MAVLink 2 signing, as an autopilot that signs does
+            self.mav.signing.secret_key = key
+            self.mav.signing.link_id = 1
+            self.mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
+            self.mav.signing.sign_outgoing = True
 
     def _pack(self, msg) -> bytes:
         # As MAVLink.send() does: each frame takes the sender's next sequence number.
@@ -161,20 +166,39 @@ class NatRelay:
                     self.dropped.extend(self.down_codec.numbers(data, "gcs"))
 
 
-def test_nat_rebinding_mid_stream_loses_only_what_was_in_flight(start_daemon):
+def key_file(tmp_path: Path) -> Tuple[bytes, Path]:
+    key = os.urandom(32)
+    path = tmp_path / "lte.key"
+    path.write_text(key.hex() + "\n")
+    path.chmod(0o600)
+    return key, path
+
+
+@pytest.mark.parametrize("signed", [True, False], ids=["signed", "unsigned"])
+def test_nat_rebinding_mid_stream_loses_only_what_was_in_flight(start_daemon, tmp_path, signed):
     """autopilot -udp-> [air mavbond: fc server, lte client] -> NAT relay -> [ground mavbond:
     lte server, gcs server] <-udp- GCS, a numbered stream each way; the relay changes its
-    public source port halfway. The ground takes the new port at once (the same vehicle's
-    stream carries on from it), sends there from then on, and forgets the old mapping."""
+    public source port after 300 of 900 frames (200 a second).
+
+    Signed (the autopilot signs, the ground requires it): the new port's first verified frame
+    carries the vehicle's signed stream on, so the ground takes it at once, sends there from
+    then on and forgets the old mapping. Unsigned, the new port is a peer from its first frame
+    (every GCS frame from then on reaches the vehicle) and takes the old one's place once the
+    old mapping stayed silent for 2 s while the new one carried the stream on: until then
+    the ground sends to both (the rule a stranger guessing the sequence cannot meet: before
+    issue 22 the unsigned switch too came at the first frame)."""
     fc_port, lte_port, gcs_port = free_port(), free_port(), free_port()
-    ground = start_daemon([udp_server("lte", lte_port), udp_server("gcs", gcs_port)],
-                          name="ground")
+    key, path = key_file(tmp_path) if signed else (None, None)
+    lte = udp_server("lte", lte_port)
+    if signed:
+        lte["signing"] = f"{{key_file: {path}, require: true}}"
+    ground = start_daemon([lte, udp_server("gcs", gcs_port)], name="ground")
     relay = NatRelay((HOST, lte_port))
     air = start_daemon([udp_server("fc", fc_port),
                         {"name": "lte", "type": "udp", "mode": "client",
                          "address": f"{HOST}:{relay.port}"}], name="air")
     autopilot, gcs = udp4(), udp4()
-    ap_codec, gcs_codec = Codec(*AUTOPILOT), Codec(*GCS)
+    ap_codec, gcs_codec = Codec(*AUTOPILOT, key=key), Codec(*GCS)
     ap_rx, gcs_rx = Codec(), Codec()
     try:
         # Both daemons learn their peers: the autopilot's frames make the ground learn the
@@ -195,36 +219,49 @@ def test_nat_rebinding_mid_stream_loses_only_what_was_in_flight(start_daemon):
                     r, _, _ = select.select([s], [], [], 0)
         assert heard_ap and heard_gcs, "the warm-up frames must cross both ways"
 
-        count = 600
+        count, moved_at = 900, 300
         got_at_gcs: List[int] = []
         got_at_ap: List[int] = []
         for n in range(count):
             autopilot.sendto(ap_codec.numbered("ap", n), (HOST, fc_port))
             gcs.sendto(gcs_codec.numbered("gcs", n), (HOST, gcs_port))
-            if n == count // 2:
+            if n == moved_at:
                 relay.rebind()
             if n % 20 == 19:
-                time.sleep(0.005)  # a telemetry rate, not a flood
+                time.sleep(0.1)  # a telemetry rate, not a flood
         collect(gcs, gcs_rx, "ap", count, got_at_gcs)
-        # Ground to air: everything but what came to the old mapping after the rebinding.
+        # Ground to air: everything but what came to the old mapping alone.
         deadline = time.monotonic() + 10
-        while len(got_at_ap) + len(relay.dropped) < count and time.monotonic() < deadline:
-            collect(autopilot, ap_rx, "gcs", count - len(relay.dropped), got_at_ap, timeout=0.2)
+        while len(got_at_ap) < len(set(relay.down_old + relay.down_new)) and time.monotonic() < deadline:
+            collect(autopilot, ap_rx, "gcs", count, got_at_ap, timeout=0.2)
+        collect(autopilot, ap_rx, "gcs", count, got_at_ap, timeout=0.3)
 
-        print(f"\nrelay: up {len(relay.up)}, down via the first mapping {len(relay.down_old)}, "
-              f"via the new one {len(relay.down_new)}, dropped at the old one {relay.dropped}; "
-              f"GCS got {len(got_at_gcs)}, autopilot got {len(got_at_ap)}")
+        only_old = sorted(set(relay.dropped) - set(relay.down_new))
+        both = sorted(set(relay.dropped) & set(relay.down_new))
+        print(f"\n{'signed' if signed else 'unsigned'}: relay up {len(relay.up)}, down via the "
+              f"first mapping {len(relay.down_old)}, via the new one {len(relay.down_new)}; to the "
+              f"old mapping after the move: {len(only_old)} alone {only_old}, {len(both)} also to "
+              f"the new one; GCS got {len(got_at_gcs)}, autopilot got {len(got_at_ap)}")
         # Air to ground: nothing is lost (the relay forwards every datagram, on loopback).
         assert relay.up == list(range(count))
         assert got_at_gcs == list(range(count)), "every autopilot frame, in order, once"
-        # Ground to air: exactly what the relay forwarded, which is everything but the frames
-        # in flight to the old mapping when it was replaced; those were all sent before the
-        # ground first sent to the new mapping: from then on nothing went to the old one.
-        assert sorted(relay.down_old + relay.dropped + relay.down_new) == list(range(count))
+        # Ground to air: exactly what the relay forwarded, in order, once; every frame reached
+        # the relay on one mapping or the other.
         assert got_at_ap == relay.down_old + relay.down_new
+        assert sorted(set(relay.down_old + relay.dropped + relay.down_new)) == list(range(count))
         assert relay.down_new, "the ground sends to the new mapping"
-        assert all(n < relay.down_new[0] for n in relay.dropped), (
-            "nothing goes to the old mapping once the ground sends to the new one")
+        # What was lost went to the old mapping alone, before the ground heard the new one.
+        assert all(n < relay.down_new[0] for n in only_old)
+        # Once the ground takes the rebinding, nothing more goes to the old mapping.
+        last_old = max(relay.dropped, default=-1)
+        assert relay.down_new[-1] == count - 1 and last_old < count - 1
+        if signed:
+            assert both == [], "taken at once: never both mappings"
+        else:
+            # Both mappings while the old one might still be the vehicle's: at least 2 s of
+            # frames (400), never one lost by it.
+            assert len(both) >= 2 * 200 - 20
+            assert both == list(range(both[0], both[-1] + 1))
 
         text = ground.wait_log(r"\[udp:lte\] peer 127\.0\.0\.1:\d+ now at 127\.0\.0\.1:\d+ "
                                r"\(a NAT rebinding\)")
@@ -243,57 +280,82 @@ def test_nat_rebinding_mid_stream_loses_only_what_was_in_flight(start_daemon):
 
 
 def test_two_live_paths_of_one_system_are_not_taken_for_a_rebinding(start_daemon):
-    """Two modems of one vehicle sending the same stream to one ground port: the second path's
-    first frame may run ahead of the first's and look like a rebinding. When the address taken
-    as rebound sends again, the daemon says so, stops detecting rebindings on that endpoint and
-    keeps both paths: frames from the GCS reach both."""
+    """Two modems of one vehicle sending the same unsigned stream to one ground port: the
+    second path's first frame may run ahead of the first's and look like a rebinding, but the
+    first path goes on sending: both stay peers and get the GCS's frames, no rebinding. When
+    a path falls silent for 2 s while a new one carries the stream on, that is taken as a
+    rebinding; the silent path sending again says it was alive (a warning), both are kept,
+    and detection pauses for peer_timeout, no longer: a later real move is followed."""
     lte_port, gcs_port = free_port(), free_port()
-    d = start_daemon([udp_server("lte", lte_port), udp_server("gcs", gcs_port)])
-    path_a, path_b, gcs = udp4(), udp4(), udp4()
-    vehicle = Codec(*AUTOPILOT)
+    d = start_daemon([udp_server("lte", lte_port, peer_timeout="4s"), udp_server("gcs", gcs_port)])
+    path_a, path_b, path_c, path_d, gcs = udp4(), udp4(), udp4(), udp4(), udp4()
+    vehicle, g = Codec(*AUTOPILOT), Codec(*GCS)
+    port = lambda s: s.getsockname()[1]  # noqa: E731
+    n = 0
+
+    def carry_on(paths, seconds: float, period: float = 0.1):
+        """The vehicle's stream over `paths` (each frame on each, in that order)."""
+        nonlocal n
+        end = time.monotonic() + seconds
+        while True:
+            frame = vehicle.numbered("ap", n)
+            n += 1
+            for p in paths:
+                p.sendto(frame, (HOST, lte_port))
+            if time.monotonic() >= end:
+                return
+            time.sleep(period)
+
+    def each_gets(tag: int, paths) -> List[List[int]]:
+        gcs.sendto(g.numbered("gcs", tag), (HOST, gcs_port))
+        return [collect(s, Codec(), "gcs", 1, [], timeout=3) for s in paths]
+
     try:
-        frames = [vehicle.numbered("ap", n) for n in range(12)]
-        gcs.sendto(Codec(*GCS).heartbeat(), (HOST, gcs_port))
+        gcs.sendto(g.heartbeat(), (HOST, gcs_port))
         d.wait_log(r"\[udp:gcs\] new peer")
-        for f in frames[:10]:
-            path_a.sendto(f, (HOST, lte_port))
-        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{path_a.getsockname()[1]}")
-        path_b.sendto(frames[10], (HOST, lte_port))  # the faster path's copy of frame 10
-        d.wait_log(r"now at .* \(a NAT rebinding\)")
-        path_a.sendto(frames[10], (HOST, lte_port))  # the slower path's copy: it is alive
-        d.wait_log(rf"peer 127\.0\.0\.1:{path_a.getsockname()[1]} sends again after it was "
-                   r"taken as rebound: two live paths")
-        path_b.sendto(frames[11], (HOST, lte_port))
-        path_a.sendto(frames[11], (HOST, lte_port))
-        gcs.sendto(Codec(*GCS).numbered("gcs", 7), (HOST, gcs_port))
-        assert collect(path_a, Codec(), "gcs", 1, []) == [7]
-        assert collect(path_b, Codec(), "gcs", 1, []) == [7]
-        assert d.log().count("(a NAT rebinding)") == 1, "detection is off after the warning"
+        carry_on([path_a], 0)
+        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{port(path_a)}")
+        carry_on([path_b, path_a], 2.5)  # the faster path's copy first
+        live = each_gets(1, [path_a, path_b])
+        quiet_rebinds = d.stats()["lte"]["peer_rebinds"]
+        # Both fall silent (path a's modem stalls); a new path carries on for 2 s: a rebinding...
+        carry_on([path_d], 2.3, period=0.25)
+        d.wait_log(rf"now at 127\.0\.0\.1:{port(path_d)} \(a NAT rebinding\)")
+        # ... until path a speaks again: it was alive.
+        carry_on([path_d, path_a], 0)
+        d.wait_log(rf"peer 127\.0\.0\.1:{port(path_a)} sends again after it was taken as "
+                   r"rebound: two live paths of one system, not a NAT rebinding; rebinding "
+                   r"detection paused for 4s")
+        kept = each_gets(2, [path_a, path_d])
+        # Both paths go on past the pause, then fall silent; a third address carries on.
+        carry_on([path_d, path_a], 4.5)
+        carry_on([path_c], 2.3, period=0.25)
+        text = d.wait_log(rf"now at 127\.0\.0\.1:{port(path_c)} \(a NAT rebinding\)")
+        print(f"\nboth paths live: each got {live}, {quiet_rebinds} rebindings; after the "
+              f"warning each got {kept}; then {text.count('(a NAT rebinding)')} rebindings")
+        assert quiet_rebinds == 0 and live == [[1], [1]]
+        assert kept == [[2], [2]], "after the warning both paths are kept"
+        assert text.count("(a NAT rebinding)") == 2, "detection paused, not off for good"
     finally:
-        for s in (path_a, path_b, gcs):
+        for s in (path_a, path_b, path_c, path_d, gcs):
             s.close()
 
 
 def test_a_forged_frame_from_a_new_address_is_no_rebinding(mavbond_bin, tmp_path):
     """With signing required, an unsigned frame that carries on the vehicle's stream (its ids,
-    the next sequence number) from another address does not take the vehicle's place; the
-    vehicle's own signed frames from a new address do."""
-    key = os.urandom(32)
-    key_file = tmp_path / "lte.key"
-    key_file.write_text(key.hex() + "\n")
-    key_file.chmod(0o600)
+    the next sequence number) from another address makes no peer and takes nothing; the
+    vehicle's own signed frames from a new address take its place at once."""
+    key, path = key_file(tmp_path)
     lte_port, gcs_port = free_port(), free_port()
     config = (f"endpoints:\n"
               f"  - name: lte\n    type: udp\n    mode: server\n    address: {HOST}:{lte_port}\n"
-              f"    signing: {{key_file: {key_file}, require: true}}\n"
+              f"    signing: {{key_file: {path}, require: true}}\n"
               f"  - {{name: gcs, type: udp, mode: server, address: {HOST}:{gcs_port}}}\n")
-    d = Daemon(mavbond_bin, tmp_path, config, name="signed").start()
+    d = Daemon(mavbond_bin, tmp_path, config, name="signed")
+    d.endpoint_names = ["lte", "gcs"]
+    d.start()
     first, second, forger, gcs = udp4(), udp4(), udp4(), udp4()
-    vehicle, forged = Codec(*AUTOPILOT), Codec(*AUTOPILOT)
-    vehicle.mav.signing.secret_key = key
-    vehicle.mav.signing.link_id = 1
-    vehicle.mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
-    vehicle.mav.signing.sign_outgoing = True
+    vehicle, forged = Codec(*AUTOPILOT, key=key), Codec(*AUTOPILOT)
     try:
         gcs.sendto(Codec(*GCS).heartbeat(), (HOST, gcs_port))
         d.wait_log(r"\[udp:gcs\] new peer")
@@ -302,7 +364,7 @@ def test_a_forged_frame_from_a_new_address_is_no_rebinding(mavbond_bin, tmp_path
         d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{first.getsockname()[1]}")
         forged.mav.seq = vehicle.mav.seq  # the vehicle's next sequence number, unsigned
         forger.sendto(forged.numbered("ap", 99), (HOST, lte_port))
-        d.wait_log(rf"\[udp:lte\] new peer 127\.0\.0\.1:{forger.getsockname()[1]}")
+        stranger = d.settle_stats(lambda s: s["lte"]["stranger_datagrams"])["lte"]
         gcs.sendto(Codec(*GCS).numbered("gcs", 1), (HOST, gcs_port))
         assert collect(first, Codec(), "gcs", 1, []) == [1], "the vehicle keeps its place"
         assert collect(gcs, Codec(), "ap", 5, []) == list(range(5)), "the forged frame is dropped"
@@ -310,6 +372,9 @@ def test_a_forged_frame_from_a_new_address_is_no_rebinding(mavbond_bin, tmp_path
         d.wait_log(rf"peer 127\.0\.0\.1:{first.getsockname()[1]} now at "
                    rf"127\.0\.0\.1:{second.getsockname()[1]} \(a NAT rebinding\)")
         stats = d.stats()
+        assert stranger["stranger_datagrams"] == 1 and stranger["sig_unsigned"] == 1
+        assert f"new peer 127.0.0.1:{forger.getsockname()[1]}" not in d.log()
+        assert collect(forger, Codec(), "gcs", 1, [], timeout=0.5) == [], "the forger got nothing"
         assert stats["lte"]["peer_rebinds"] == 1 and stats["lte"]["sig_unsigned"] == 1
     finally:
         d.kill()

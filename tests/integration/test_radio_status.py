@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from bonding_helpers import Gateway, bond_config
+from bonding_helpers import Gateway, bond_config, udp_sock
 from helpers import (HOST, FrameMaker, PtyReader, free_port, split_stream, status_document, uart,
-                     udp_server)
+                     udp_client, udp_server)
 
 SLOW_CEILING = 5760     # 57600 baud, 8N1
 FAST_CEILING = 92160    # 921600 baud
@@ -218,10 +218,27 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
         assert full["rxerrors"] == 1020 and full["rssi"] == 200  # ties: the stronger signal
         assert endpoint(status_document(sock), "fast")["radio_status"]["rate"] == 46080
 
-        # The slow radio empties: its budget climbs a tenth of its ceiling a report, back to it;
-        # the bond has room again.
-        climb = [report_in_step(slow, "slow", sock, 100)["rate"] for _ in range(10)]
-        assert climb == [936, 1512, 2088, 2664, 3240, 3816, 4392, 4968, 5544, 5760]
+        # The slow radio empties: its budget climbs a tenth of its ceiling a report while the
+        # rate holds the stream back (samples thinned since the report before), and stays once
+        # the stream fits: an empty buffer says nothing of a rate never used. The radio reports
+        # every half second here (a SiK, every second), so each report judges a stretch of
+        # the stream. The bond has room again.
+        climb, thinned = [], []
+        for _ in range(10):
+            time.sleep(0.5)
+            slow.report(100)
+            doc = wait_status(sock, lambda d: endpoint(d, "slow")["radio_status"]["reports"]
+                              == slow.sent)
+            climb.append(endpoint(doc, "slow")["radio_status"]["rate"])
+            thinned.append(endpoint(doc, "slow")["tx_budget"]["telemetry"]["thinned"])
+        stream = 50 * 39  # the ATTITUDE stream, B/s (its frames are 39 bytes)
+        steps = [b - a for a, b in zip([360] + climb[:-1], climb)]
+        assert all(s in (0, 576) for s in steps), climb
+        assert all(s == 576 for r, s in zip([360] + climb, steps) if r < stream), \
+            (climb, "it climbs while the stream is thinned")
+        plateau = climb[-1]
+        assert stream <= plateau < stream + 576 and climb[-3:] == [plateau] * 3, climb
+        assert thinned[-1] == thinned[-3], (thinned, "nothing thinned once the stream fits")
         n = len(ap.heard())
         report_in_step(fast, "fast", sock, 10)
         ap.wait_heard(lambda f: f["txbuf"] == 100 and f["rssi"] == 90, after=n)
@@ -246,12 +263,14 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
         out = subprocess.run([ctl, "-s", str(sock), "status"], capture_output=True, text=True,
                              timeout=30).stdout
         assert re.search(r"^radio slow: txbuf 100%, rssi 90/70, noise 40/35, rxerrors 1000 "
-                         r"\(\d+ reports, last [\d.]+ s ago\); budget 5760 of 5760 B/s$", out,
-                         re.M), out
+                         rf"\(\d+ reports, last [\d.]+ s ago\); budget {plateau} of 5760 B/s$",
+                         out, re.M), out
         assert re.search(r"^radio status air: \d+ sent to the local side, last txbuf \d+%; "
                          r"0 from others dropped$", out, re.M), out
         out = subprocess.run([ctl, "-s", str(sock), "watch", "--count", "1"],
                              capture_output=True, text=True, timeout=30).stdout
+        assert all(len(line) <= 80 for line in out.splitlines()), out
+        out = re.sub(r"\n {10}(?=\S)", " ", out)  # a radio line goes on, wrapped between words
         assert re.search(r"^    radio txbuf 10%, rssi 200/180, .*; budget \d+ of 92160 B/s$",
                          out, re.M), out
         print(f"\nslow radio's budget, report by report: down {rates}, up {climb}; the "
@@ -536,3 +555,67 @@ def test_a_radio_slower_than_its_line_loses_less_with_its_reports(gateway, pty_p
               f"offered in 12 s; the radio aired {r['aired']}, lost {r['lost']} to a full buffer "
               f"(COMMAND_ACK: {r['acks_aired']} aired, {r['acks_lost']} lost of {r['acks']}); "
               f"budget at the end {r['rate']} B/s; txbuf reports {r['txbufs']}")
+
+
+def test_a_metered_member_in_standby_is_no_room_for_the_autopilot(pty_pair, gateway, tmp_path):
+    """A radio that reports a full buffer beside an LTE link marked `cost: metered` that hears
+    its peer. In standby LTE carries control only, so the autopilot must slow to what the
+    radio carries (txbuf 30); once LTE is active (the ground reports the radio silent) the bond
+    has room again (txbuf 100). Counting a live LTE link in standby as room, ArduPilot kept its
+    rate while the radio dropped what did not fit."""
+    radio_pty = pty_pair()
+    sock = tmp_path / "status.sock"
+    ap_port = free_port()
+    ground = udp_sock()
+    eps = [uart("radio", radio_pty.path, baud=57600, radio_status="sik", bond="air"),
+           udp_client("lte", ground.getsockname()[1], bond="air", cost="metered"),
+           udp_server("ap", ap_port)]
+    gw = gateway(eps, status_socket=str(sock))
+    gw.wait_log(r"\[uart:radio\] .* open at 57600 baud")
+    radio = Radio(radio_pty, rssi=90, rxerrors=0)
+    radio.start()
+    ap = Autopilot(ap_port)
+    ap.start()
+    gcs = FrameMaker(255, 190)
+    peer = FrameMaker(1, 191)   # the ground gateway's reports
+    radio_loss = [0]            # per mille, as the ground reports the radio
+
+    def ground_says():
+        # A GCS HEARTBEAT over LTE (the link hears its peer) and the ground's report of the
+        # radio, as the ground gateway sends them every second.
+        while not stop.is_set():
+            ground.sendto(gcs.heartbeat(type_=6), (HOST, ground_port[0]))
+            ground.sendto(peer.pack(peer.mod.MAVLink_named_value_int_message(
+                0, b"mbl:radio", radio_loss[0])), (HOST, ground_port[0]))
+            radio.report(30)
+            stop.wait(0.3)
+
+    # The LTE client sends first (the air side's own reports): its source port is where the
+    # ground answers.
+    ground.settimeout(10)
+    _, addr = ground.recvfrom(65536)
+    ground_port = [addr[1]]
+    stop = threading.Event()
+    talker = threading.Thread(target=ground_says, daemon=True)
+    talker.start()
+    try:
+        wait_status(sock, lambda d: bond(d)["standby"]["reports_received"] > 3, timeout=10)
+        n = len(ap.heard())
+        i = ap.wait_heard(lambda f: f["txbuf"] == 30, after=n)
+        standby = bond(status_document(sock))["standby"]
+        assert standby["state"] == "standby", standby
+        assert all(r[3]["txbuf"] == 30 for r in ap.heard()[n:i + 1]), ap.heard()[n:]
+        # The ground hears the radio no more: LTE goes active and is room for the stream.
+        radio_loss[0] = 1000
+        wait_status(sock, lambda d: bond(d)["standby"]["state"] == "active", timeout=10)
+        n = len(ap.heard())
+        ap.wait_heard(lambda f: f["txbuf"] == 100, after=n)
+        print(f"\nstandby: the autopilot heard txbuf 30 (the radio's), active: 100 "
+              f"({len(ap.heard())} reports in all)")
+    finally:
+        stop.set()
+        talker.join(2)
+        ap.close()
+        radio.stop_flag.set()
+        ground.close()
+    assert gw.stop() == 0

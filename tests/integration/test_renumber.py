@@ -50,6 +50,46 @@ def signed_pair(i: int, key: bytes):
     return out
 
 
+def through_gateways(mavbond_bin, tmp_path, plugin_dir, events, variants, while_running=None):
+    """Ground gateways, one per variant (name: (bond keys, dedup keys, top-level keys)), each
+    with two bonded UDP servers (link_a, link_b) and a GCS; every event (t, link, frame) goes
+    to each gateway's link at its time. Returns what each GCS got and each gateway's log;
+    `while_running(gateways)` is called once the GCSs are quiet, before the gateways stop."""
+    gws, rxs, targets, socks = [], [], [], []
+    for name, (bond, dedup, top) in variants.items():
+        ga, gb, gcs = free_port(), free_port(), free_port()
+        g = Gateway(mavbond_bin, tmp_path,
+                    [udp_server("link_a", ga, bond="vehicle"), udp_server("link_b", gb, bond="vehicle"),
+                     udp_server("gcs", gcs)],
+                    bonds=[{"name": "vehicle", **bond}],
+                    filters=[{"plugin": "dedup", "bonds": ["vehicle"], **dedup}],
+                    name=name, plugin_dir=plugin_dir, log_level="info", **top).start()
+        gws.append(g)
+        s = udp_sock()
+        socks.append(s)
+        rxs.append(Receiver(s, hello_port=gcs))
+        sa, sb = udp_sock(), udp_sock()
+        socks += [sa, sb]
+        targets += [(sa, (HOST, ga)), (sb, (HOST, gb))]
+    try:
+        # Every event goes to every gateway, link A's to its link_a, link B's to its link_b.
+        flat = [(t, 2 * g + k, f) for t, k, f in events for g in range(len(gws))]
+        paced_events(flat, targets)
+        for rx in rxs:
+            rx.wait_quiet(0.5)
+        got = {name: rx.stop() for name, rx in zip(variants, rxs)}
+        if while_running:
+            while_running(gws)
+        for g in gws:
+            assert g.stop() == 0
+        return got, {name: g.log() for name, g in zip(variants, gws)}
+    finally:
+        for g in gws:
+            g.kill()
+        for s in socks:
+            s.close()
+
+
 def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, plugin_dir):
     seconds = 6
     sched = [(t / 1e6, f) for t, f in ardupilot_stream(seconds, seed=8)]
@@ -86,46 +126,23 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
         events += [(0.2 + k * 0.25, 0, fa), (0.2 + k * 0.25 + 0.015, 1, fb)]
     events.sort(key=lambda e: e[0])
 
-    gws, rxs, targets, socks = [], [], [], []
     # The renumbering gateway also answers on its status socket and /metrics.
     status_path, m_port = tmp_path / "status.sock", tcp_port()
-    for name, renumber in (("renumber", True), ("plain", False)):
-        ga, gb, gcs = free_port(), free_port(), free_port()
-        shown = dict(status_socket=str(status_path),
-                     metrics=f"{{listen: {HOST}:{m_port}}}") if renumber else {}
-        g = Gateway(mavbond_bin, tmp_path,
-                    [udp_server("link_a", ga, bond="vehicle"), udp_server("link_b", gb, bond="vehicle"),
-                     udp_server("gcs", gcs)],
-                    bonds=[{"name": "vehicle", "renumber": renumber}],
-                    filters=[{"plugin": "dedup", "bonds": ["vehicle"], "key": "content"}],
-                    name=name, plugin_dir=plugin_dir, log_level="info", **shown).start()
-        gws.append(g)
-        s = udp_sock()
-        socks.append(s)
-        rxs.append(Receiver(s, hello_port=gcs))
-        sa, sb = udp_sock(), udp_sock()
-        socks += [sa, sb]
-        targets.append(((sa, (HOST, ga)), (sb, (HOST, gb))))
-    try:
-        # Every event goes to both gateways, link A's to their link_a, link B's to link_b.
-        flat = [(t, 2 * g + k, f) for t, k, f in events for g in range(2)]
-        paced_events(flat, [targets[0][0], targets[0][1], targets[1][0], targets[1][1]])
-        for rx in rxs:
-            rx.wait_quiet(0.5)
-        got = {name: [f for f in rx.stop() if tlog.sysid(f) in (1, 2)]
-               for name, rx in zip(("renumber", "plain"), rxs)}
-        status = {b["name"]: b for b in status_document(status_path)["bonds"]}
-        metrics = scrape(m_port)
-        ctl = subprocess.run([str(Path(mavbond_bin).with_name("mavbondctl")), "status",
-                              "--socket", str(status_path)], capture_output=True, text=True,
-                             timeout=10)
-        for g in gws:
-            assert g.stop() == 0
-    finally:
-        for g in gws:
-            g.kill()
-        for s in socks:
-            s.close()
+    shown = dict(status_socket=str(status_path), metrics=f"{{listen: {HOST}:{m_port}}}")
+    seen = {}
+
+    def read_status(gws):
+        seen["status"] = {b["name"]: b for b in status_document(status_path)["bonds"]}
+        seen["metrics"] = scrape(m_port)
+        seen["ctl"] = subprocess.run([str(Path(mavbond_bin).with_name("mavbondctl")), "status",
+                                      "--socket", str(status_path)], capture_output=True,
+                                     text=True, timeout=10)
+
+    got, logs = through_gateways(mavbond_bin, tmp_path, plugin_dir, events, {
+        "renumber": ({"renumber": True}, {"key": "content"}, shown),
+        "plain": ({"renumber": False}, {"key": "content"}, {})}, read_status)
+    status, metrics, ctl = seen["status"], seen["metrics"], seen["ctl"]
+    got = {name: [f for f in frames if tlog.sysid(f) in (1, 2)] for name, frames in got.items()}
 
     ren = got["renumber"]
     for f in ren:
@@ -152,8 +169,8 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
     assert len(signed) == 20
     assert all(f in signed_sent for f in signed)
     summary = re.search(r"renumber bond=vehicle renumbered=(\d+) .*signed_left_alone=(\d+)",
-                        gws[0].log())
-    assert summary, gws[0].log()[-2000:]
+                        logs["renumber"])
+    assert summary, logs["renumber"][-2000:]
     assert int(summary.group(1)) == len(auto)
     assert int(summary.group(2)) == 40, "both copies of each signed frame counted"
 
@@ -166,3 +183,43 @@ def test_gcs_sees_exactly_the_frames_lost_on_both_links(mavbond_bin, tmp_path, p
     assert ctl.returncode == 0, ctl.stderr
     assert (f"renumber vehicle: {len(auto)} frames renumbered, {len(both)} gaps (lost on every "
             f"link)") in ctl.stdout, ctl.stdout
+
+
+def test_a_bond_with_dedup_renumbers_unless_told_not_to(mavbond_bin, tmp_path, plugin_dir):
+    """The usual pair: one stream fanned out by the air gateway (the same bytes on both links,
+    dedup's default key), link B 200 ms behind link A (within stale_after: no rescued sample is
+    dropped as stale), each losing 5 % and some frames on both.
+    What link B rescues comes after frames sent after it: without renumbering a GCS counts
+    each such step back as ~255 lost. A bond with dedup renumbers without being told (and
+    says so at start); `renumber: false` turns it off."""
+    seconds = 6
+    sched = [(t / 1e6, f) for t, f in ardupilot_stream(seconds, seed=11)]
+    n = len(sched)
+    rng = random.Random(11)
+    lost_a = {i for i in range(n) if rng.random() < 0.05}
+    lost_b = {i for i in range(n) if rng.random() < 0.05}
+    for start in (200, 450):
+        lost_a.update(range(start, start + 3))
+        lost_b.update(range(start, start + 3))
+    head = {i for i in range(n) if sched[i][0] < 0.1}
+    tail = {i for i in range(n) if sched[i][0] > seconds - 1.5}
+    lost_a -= head
+    lost_b -= head | tail
+    lost_a -= tail & lost_b
+    both = lost_a & lost_b
+    events = sorted([(t, 0, f) for i, (t, f) in enumerate(sched) if i not in lost_a] +
+                    [(t + 0.2, 1, f) for i, (t, f) in enumerate(sched) if i not in lost_b],
+                    key=lambda e: e[0])
+    got, logs = through_gateways(mavbond_bin, tmp_path, plugin_dir, events, {
+        "derived": ({}, {}, {}), "off": ({"renumber": False}, {}, {})})
+    loss = {name: gcs_loss([f for f in frames if tlog.sysid(f) == 1])[(1, 1)]
+            for name, frames in got.items()}
+    print(f"\n[renumber by default] {n} frames, {len(lost_a - lost_b)} rescued late by link B, "
+          f"{len(both)} lost on both: a GCS counts {loss['derived']} lost with the bond's "
+          f"default, {loss['off']} with renumber: false")
+    delivered = [f for f in got["derived"] if tlog.sysid(f) == 1]
+    assert len(delivered) == n - len(both)
+    assert loss["derived"] == len(both)
+    assert loss["off"] > 10 * len(both), "rescued frames step back without renumbering"
+    assert re.search(r"bond vehicle: renumbers what it delivers", logs["derived"]), logs["derived"]
+    assert re.search(r"bond vehicle: does not renumber .*renumber: false", logs["off"]), logs["off"]

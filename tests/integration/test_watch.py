@@ -1,6 +1,7 @@
 """mavbondctl watch against a real daemon with traffic: one line per link with its bond,
-loss (from the stats filter), receive rate, time since its last frame and the active-link
-marker; one block per refresh through a pipe, redrawn in place on a terminal."""
+state, loss (from the stats filter, and what it is read from), receive rate, time since its
+last frame and the active-link marker, one line per bond; one block per refresh through a
+pipe, redrawn in place on a terminal, no line past 80 columns."""
 from __future__ import annotations
 
 import os
@@ -15,8 +16,9 @@ from typing import Dict, List
 from bonding_helpers import Gateway
 from helpers import HOST, FrameMaker, free_port, udp_server, udp_socket
 
-ROW = re.compile(r"^(?P<mark>[* ]) (?P<name>\S+)\s+(?P<bond>\S+)\s+(?P<loss>\S+)\s+(?P<rate>\S+)\s+"
-                 r"(?P<ago>\S+)$")
+ROW = re.compile(r"^(?P<mark>[* ]) (?P<name>\S+)\s+(?P<bond>\S+)\s+(?P<state>\S+)\s+"
+                 r"(?P<loss>\S+)\s+(?P<by>\S+)\s+(?P<rate>\S+)\s+(?P<ago>\S+)$")
+BOND = re.compile(r"^  bond (?P<name>\S+): (?P<figures>.*)$")
 
 
 def ctl_bin(mavbond_bin: str) -> str:
@@ -29,10 +31,18 @@ def parse_blocks(text: str) -> List[Dict[str, dict]]:
         lines = chunk.splitlines()
         assert lines[0].startswith("mavbond ") and "LINK" in lines[1], chunk
         rows = {}
+        last = None
         for line in lines[2:]:
+            assert len(line) <= 80, f"past 80 columns: {line!r}"
+            if line.startswith("    "):  # under a link: its budget, its radio
+                last.setdefault("sub", []).append(line)
+                continue
+            if b := BOND.match(line):
+                rows["bond " + b["name"]] = last = b.groupdict()
+                continue
             m = ROW.match(line)
             assert m, f"unexpected line {line!r}"
-            rows[m["name"]] = m.groupdict()
+            rows[m["name"]] = last = m.groupdict()
         blocks.append(rows)
     return blocks
 
@@ -46,9 +56,12 @@ def start_gateway(mavbond_bin, plugin_dir, tmp_path, ports):
     sock = tmp_path / "status.sock"
     gw = Gateway(mavbond_bin, tmp_path,
                  [udp_server("radioA", ports[0], bond="air"), udp_server("radioB", ports[1], bond="air"),
-                  udp_server("gcs", ports[2])],
+                  udp_server("gcs", ports[2], tx_rate="1MB/s")],
                  bonds=[{"name": "air", "tx": "active"}],
-                 filters=[{"plugin": "linkswitch", "bonds": ["air"]}, {"plugin": "stats"}],
+                 # dedup first: its status lists the links by the same names, without a loss
+                 # (watch read its entry once and showed 0.00%)
+                 filters=[{"plugin": "dedup", "bonds": ["air"]},
+                          {"plugin": "linkswitch", "bonds": ["air"]}, {"plugin": "stats"}],
                  plugin_dir=plugin_dir, status_socket=str(sock))
     return gw.start(), sock
 
@@ -90,8 +103,9 @@ def test_watch_through_a_pipe(mavbond_bin, plugin_dir, tmp_path):
     assert "\033[" not in r.stdout, "no terminal codes into a pipe"
     blocks = parse_blocks(r.stdout)
     assert len(blocks) == 5
-    assert set(blocks[0]) == {"radioA", "radioB", "gcs"}
-    assert all(row["rate"] == "-" for row in blocks[0].values()), "no rate before two samples"
+    assert set(blocks[0]) == {"radioA", "radioB", "gcs", "bond air"}
+    assert all(row["rate"] == "-" for name, row in blocks[0].items() if name != "bond air"), \
+        "no rate before two samples"
     last = blocks[-1]
     a, b, g = last["radioA"], last["radioB"], last["gcs"]
     assert (a["bond"], b["bond"], g["bond"]) == ("air", "air", "-")
@@ -100,6 +114,19 @@ def test_watch_through_a_pipe(mavbond_bin, plugin_dir, tmp_path):
     assert 10 <= rate_a <= 150, f"radio A carries about 45 frames/s, watch says {rate_a}"
     assert float(b["rate"]) == 0.0
     assert 5.0 <= float(a["loss"].rstrip("%")) <= 15.0, f"10% of radio A's frames were never sent: {a}"
+    # Its far side (the test) sends no count markers: the loss is read from sequence gaps.
+    assert a["by"] == "sequence"
+    # Radio A is heard, radio B spoke once (down), the GCS is no bond member (up).
+    assert (a["state"], b["state"], g["state"]) == ("up", "down", "up")
+    # The GCS's budget: one line per class at most, wrapped between classes, never in one.
+    budget = g["sub"]
+    assert budget[0].startswith("    tx 1000000 B/s; control ") and len(budget) >= 2, budget
+    for line, following in zip(budget, budget[1:]):
+        assert line.endswith(";") and following.startswith("       ") and \
+            re.match(r"^ {7}(telemetry|bulk) ", following), budget
+    assert budget[-1].endswith("thinned or dropped)"), budget
+    assert re.fullmatch(r"delivered loss \d+\.\d\d% \(\d+ of \d+ lost\); active link radioA",
+                        last["bond air"]["figures"]), last["bond air"]
     assert seconds(a["ago"]) < 1.0, "radio A is heard all the time"
     assert seconds(b["ago"]) >= 1.0, "radio B spoke once, more than a second ago"
     assert seconds(b["ago"]) > seconds(blocks[0]["radioB"]["ago"]), "last heard grows while silent"

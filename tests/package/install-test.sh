@@ -188,7 +188,8 @@ exposure=$(systemd-analyze security --offline=yes "$UNIT" 2>/dev/null | sed -n '
 check "systemd-analyze security: exposure $exposure (<= 2.0)" awk -v e="$exposure" 'BEGIN { exit !(e != "" && e <= 2.0) }'
 for k in 'DynamicUser=yes' 'SupplementaryGroups=dialout' "ExecStartPre=/usr/bin/mavbond --check-config -c $CONF" \
          'Restart=on-failure' 'RuntimeDirectory=mavbond' 'NoNewPrivileges=yes' 'ProtectSystem=strict' \
-         'ProtectHome=yes' 'PrivateTmp=yes' 'RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6'; do
+         'ProtectHome=yes' 'PrivateTmp=yes' 'RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6' \
+         'Type=notify' 'WatchdogSec=10s'; do
     check "unit: $k" grep -qxF "$k" "$UNIT"
 done
 
@@ -249,9 +250,15 @@ if start_daemon "$WORK/bond.yaml"; then
     stop_daemon
     check "clean stop (exit $DAEMON_RC)" test "$DAEMON_RC" -eq 0
 fi
+# The examples' signed bond reads /etc/mavbond/bond.key: made as a user makes it.
+check "mavbondctl keygen /etc/mavbond/bond.key" mavbondctl keygen /etc/mavbond/bond.key
+check "the key is the service user's, mode 0600" \
+    test "$(stat -c %U:%a /etc/mavbond/bond.key)" = mavbond:600
+check "keygen never overwrites a key" sh -c "! mavbondctl keygen /etc/mavbond/bond.key"
 for ex in /usr/share/doc/mavbond/examples/*.yaml; do
     check "mavbond --check-config $ex (its filters load from $PLUGINDIR)" "${RUN_AS[@]}" /usr/bin/mavbond --check-config -c "$ex"
 done
+rm -f /etc/mavbond/bond.key  # the user's file: a purge leaves it (and /etc/mavbond with it)
 
 say "conffile: edit, reinstall, purge"
 check "conffile edited" edit_conffile

@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # The amd64 package under a real systemd: a Debian bookworm container booted with
 # systemd-nspawn (systemd as PID 1, its own network namespace), the package installed in it
-# with apt. The unit starts from the shipped config and routes; `systemd-analyze security`
+# with apt. The unit (Type=notify) becomes active on the daemon's READY=1 and shows its
+# STATUS= line; it starts from the shipped config and routes; `systemd-analyze security`
 # is reported; a user in group mavbond runs mavbondctl status, one outside is refused; the
-# conffile is edited while frames flow and `systemctl reload` applies it with none lost; the
-# journal carries the link events; `systemctl stop` ends it cleanly.
+# conffile is edited while frames flow and `systemctl reload` applies it with none lost, the
+# unit going through RELOADING=1 to READY=1 (systemd's debug log shows each notification);
+# the journal carries the link events; a daemon frozen with SIGSTOP stops feeding the
+# watchdog and systemd restarts it; `systemctl stop` ends it cleanly.
 #
 #   tests/package/systemd-test.sh build-deb/mavbond_VERSION_amd64.deb
 #
@@ -144,6 +147,15 @@ unit_is() {   # unit_is STATE: the unit reaches it within 10 s
 }
 check "systemctl is-active mavbond: active (postinst started it)" unit_is active
 journal() { in_container journalctl -u mavbond --no-pager -o cat; }   # the unit's messages
+prop() { in_container systemctl show -p "$1" --value mavbond; }
+notify_ready() {   # Type=notify: active means systemd had READY=1; the STATUS= line is there
+    local t s
+    t=$(prop Type)
+    s=$(prop StatusText)
+    echo "Type=$t StatusText=$s"
+    [ "$t" = notify ] && grep -q "2 endpoints, [0-9]* frames routed" <<<"$s"
+}
+show "active via the daemon's READY=1, with its STATUS= line" notify_ready
 running_log() { journal | grep -m1 "running with"; }
 show "the journal: it runs the shipped config" running_log
 show "a frame routed between the shipped endpoints (UDP 14550 <-> 14540)" \
@@ -186,6 +198,8 @@ EOF
 check "mavbond --check-config on the edited conffile" in_container mavbond --check-config
 main_pid() { in_container systemctl show -p MainPID --value mavbond; }
 pid_before=$(main_pid)
+# systemd's debug log names every notification it gets and every state the unit enters.
+check "systemd-analyze log-level debug" in_container systemd-analyze log-level debug
 in_container python3 /srv/test/route_check.py stream 14550 14540 4 >"$WORK/stream.out" 2>&1 &
 stream_pid=$!
 sleep 1.5
@@ -198,6 +212,18 @@ reloaded() { journal | grep "reloaded: "; }
 show "the journal: the reload took the edit" reloaded
 check "still active" unit_is active
 check "the same process (MainPID $pid_before)" test "$(main_pid)" = "$pid_before"
+through_reloading() {   # RELOADING=1 (with MONOTONIC_USEC) and READY=1 after it, from the daemon
+    local j
+    j=$(journal | grep -E "Got notification message from PID $pid_before \((RELOADING|READY)=1" || true)
+    echo "$j"
+    grep -q "(RELOADING=1, MONOTONIC_USEC=[0-9]*, STATUS=reloading)" <<<"$j" &&
+        grep -A100 "RELOADING=1" <<<"$j" | grep -q "(READY=1, STATUS=bond air: "
+}
+show "the unit went through the daemon's RELOADING=1 to its READY=1" through_reloading
+reload_states() { journal | grep -E "mavbond.service: Changed (running -> reload|reload -> running)"; }
+show "systemd's view: running -> reload -> running" reload_states
+status_after() { prop StatusText; prop StatusText | grep -q "bond air: "; }
+show "the STATUS= line names the new bond" status_after
 
 say "link events in the journal"
 show "a frame over both radios of the bond, delivered once" \
@@ -210,6 +236,35 @@ link_events() {
     grep -q "link radio1 up (bond air" <<<"$j" && grep -q "link radio2 lost (bond air" <<<"$j"
 }
 show "the journal: link radio1 up, link radio2 lost" link_events
+
+# --- the watchdog: a frozen daemon is restarted ------------------------------------------
+say "SIGSTOP the daemon: the loop stops feeding WatchdogSec, systemd restarts it"
+check "WatchdogSec=10s" test "$(prop WatchdogUSec)" = 10s
+frozen=$(main_pid)
+restarts_before=$(prop NRestarts)
+in_container kill -STOP "$frozen"
+restarted() {   # a new main process, active (watchdog 10 s + RestartSec 2 s + start), <= 60 s
+    local p
+    for _ in $(seq 600); do
+        p=$(main_pid)
+        if [ "$p" != "$frozen" ] && [ "$p" != 0 ] && [ "$(in_container systemctl is-active mavbond)" = active ]; then
+            echo "MainPID $frozen -> $p, NRestarts $restarts_before -> $(prop NRestarts)"
+            return 0
+        fi
+        sleep 0.1
+    done
+    in_container systemctl status --no-pager mavbond
+    return 1
+}
+show "restarted after the watchdog timeout" restarted
+watchdog_log() {
+    local j
+    j=$(journal | grep -E "Watchdog timeout|Failed with result 'watchdog'" || true)
+    echo "$j"
+    grep -q "Watchdog timeout" <<<"$j" && grep -q "Failed with result 'watchdog'" <<<"$j"
+}
+show "the journal: the watchdog did it" watchdog_log
+check "systemd-analyze log-level info" in_container systemd-analyze log-level info
 
 # --- stop ---------------------------------------------------------------------------------
 say "systemctl stop"

@@ -3,7 +3,6 @@
 every test), loaded from there under another module name, and the peers' own skips."""
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -13,10 +12,9 @@ INTEGRATION = Path(__file__).resolve().parents[1] / "integration"
 sys.path.insert(0, str(INTEGRATION))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-_spec = importlib.util.spec_from_file_location("integration_conftest", INTEGRATION / "conftest.py")
-_integration = importlib.util.module_from_spec(_spec)
-sys.modules["integration_conftest"] = _integration
-_spec.loader.exec_module(_integration)
+from helpers import integration_conftest  # noqa: E402
+
+_integration = integration_conftest()
 
 no_sanitizer_reports = _integration.no_sanitizer_reports
 mavbond_bin = _integration.mavbond_bin

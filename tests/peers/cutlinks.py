@@ -14,13 +14,15 @@ SPEC.json is linkemu's group spec. CUTS.json is a list of steps taken one after 
 A step fires on the `count`-th datagram carrying `msgid` (its first frame's) that arrives on
 link `on.link` in direction `on.dir` after the previous step fired (datagrams a cut link
 drops still arrive, so they count); with `"total": true` in `on`, counting from the start
-instead (if that many came before the previous step fired, on the next one). `cut` drops everything on a link from the datagram after
-the one that fires the step, in both directions, recorded in the drop logs with reason
-"outage" like linkemu's timed outages; `restore` ends a cut from the datagram that fires the
-step, which passes (see Cutter for how this holds across links). So where a cut falls in a
-transfer depends only on the protocol's progress, never on the machine's timing. Each step
-taken is one JSON line in the cut log (written as it is taken): the step, the counting
-link's datagram index in that direction, and the time (s since the group started).
+instead (if that many came before the previous step fired, on the next one). `cut` drops
+everything on a link from the datagram after the one that fires the step, in both
+directions, recorded in the drop logs with reason "outage" like linkemu's timed outages;
+`restore` ends a cut from the datagram that fires the step, which passes (see Cutter for how
+this holds across links). So where a cut falls in a transfer depends only on the protocol's
+progress, never on the machine's timing. Each step taken is one JSON line in the cut log
+(written as it is taken): the step, the counting link's datagram `index` in that direction,
+its `frame` (its index among the datagrams of that link and direction that are no count
+marker: see Cutter), and the time (s since the group started).
 
 Everything else (banner, signals, counters on stdout, drop and send logs) is linkemu's, so
 tests/integration/bonding_helpers.EmuGroup drives it unchanged."""
@@ -35,6 +37,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import linkemu  # noqa: E402
+import tlog  # noqa: E402
 
 
 def msgid_of(data: bytes) -> int:
@@ -46,22 +49,28 @@ def msgid_of(data: bytes) -> int:
 
 
 class Cutter:
-    """Takes the steps. The links of a group carry the same datagrams in the same order in
-    each direction (one sender fans every frame out to all of them), so a datagram's index
-    names the same frame on every link; a step's cuts and restores take effect at an index
-    of the step's direction, not at an instant: link B cut "from now" while its socket has
-    not been read as far as link A's would lose there what A lost too. The fired datagram's
-    index is i: a cut starts at i + 1, a restore at i (that datagram passes), on every link
-    named. In the other direction they take effect at each link's next datagram. The next
-    step counts only once the step's cuts and restores of its own direction took effect."""
+    """Takes the steps. The links of a group carry the same frames in the same order in each
+    direction (one sender fans every frame out to all of them), and between them each link's
+    own count markers (mavbond.yaml(5), LINK ACCOUNTING: every bond member writes its own,
+    about once a second, wherever its timer falls), so a datagram's index is not the same
+    frame's on every link: its frame position is, the number of datagrams before it on that
+    link and direction that are no count marker (a marker's: the frames before it). A step's
+    cuts and restores take effect at a frame position of the step's direction, not at an
+    instant: link B cut "from now" while its socket has not been read as far as link A's
+    would lose there what A lost too. The fired datagram's frame position is f: a cut starts
+    at the first datagram at f + 1 or beyond, a restore at f (that datagram passes), on every
+    link named. In the other direction they take effect at each link's next datagram. The
+    next step counts only once the step's cuts and restores of its own direction took
+    effect."""
 
     def __init__(self, group: linkemu.LinkGroup, steps: list, log_path: str):
         self.group = group
         self.steps = steps
         self.next = 0
         self.seen = 0
-        self.pending: list = []      # [link, direction, action, first index]
+        self.pending: list = []      # [link, direction, action, first frame position]
         self.totals: dict = {}       # (link, direction, msgid) -> datagrams so far
+        self.frames: dict = {}       # (link, direction) -> datagrams so far, no marker
         self.done: list = []
         self.log_path = log_path
         for link in group.links:
@@ -71,19 +80,23 @@ class Cutter:
     def _wrap(self, link, direction, admit):
         def wrapped(data, now, rel, have_peer=True):
             i = direction.index                  # the index this datagram gets
+            here = (link.name, direction.name)
+            f = self.frames.get(here, 0)         # its frame position
+            if tlog.count_marker(data) is None:
+                self.frames[here] = f + 1
             key = (link.name, direction.name, msgid_of(data))
             self.totals[key] = self.totals.get(key, 0) + 1
             step = self._match(link.name, direction.name, data)
             if step is not None:
                 for action, target in step["do"]:
-                    for name, d in self.group.link(target).dirs.items():
-                        at = (i if action == "restore" else i + 1) \
-                            if name == direction.name else d.index
+                    for name in self.group.link(target).dirs:
+                        at = (f if action == "restore" else f + 1) \
+                            if name == direction.name else self.frames.get((target, name), 0)
                         self.pending.append([target, name, action, at])
-                self.done.append(dict(step, index=i, t=round(rel, 6)))
+                self.done.append(dict(step, index=i, frame=f, t=round(rel, 6)))
                 self.write()
             for p in [p for p in self.pending if p[0] == link.name and p[1] == direction.name
-                      and p[3] <= i]:
+                      and p[3] <= f]:
                 self.pending.remove(p)
                 (self._restore if p[2] == "restore" else self._cut)(direction, rel)
             return admit(data, now, rel, have_peer)

@@ -1,16 +1,20 @@
 """What crossed the bond, from the records alone: the two gateways' flight logs (what each
-end sent, what was delivered to it) and the emulator's drop records (which datagrams each
-link lost). Nothing is judged by how long anything took: times give order only, within one
-gateway's log (which answer came before which retry), and across the two logs (stamped from
-the same clock) only where the order is beyond doubt: a frame is delivered a link's delay,
-10 ms at least, after it was sent, and a transfer MAVSDK gave up on ended seconds before the
-ground station began it again.
+end sent, what was delivered to it) and the emulator's records (every datagram each link
+received, and which of them it lost). Nothing is judged by how long anything took: times
+give order only, within one gateway's log (which answer came before which retry), and
+across the two logs (stamped from the same clock) only where the order is beyond doubt: a
+frame is delivered a link's delay, 10 ms at least, after it was sent, and a transfer MAVSDK
+gave up on ended seconds before the ground station began it again.
 
 Two questions are answered:
 
 1. Delivery, per direction: each frame an end sent is matched to the datagram index it had
-   on every link (the gateway sends every frame of an end on every link of the bond, in the
-   order its log holds them, one frame per datagram), so the frames lost on every link are
+   on every link, from the emulator's record of every datagram each link received (its
+   bytes): the gateway sends every frame of an end on every link of the bond, in the order
+   its log holds them, one frame per datagram, and between them the link's own count
+   markers (mavbond.yaml(5), LINK ACCOUNTING), which it writes itself, never routes, and
+   which are in no flight log. With the markers taken out, each link's datagrams must be
+   the log's frames, byte for byte, in its order; so the frames lost on every link are
    known. Then: duplicates delivered (a frame delivered more often than it was sent), frames
    lost although some link brought them, frames lost on every link.
 
@@ -20,7 +24,8 @@ Two questions are answered:
      late     it was answered, but that attempt or an answer to it was lost on the faster
               link (the emulator's record), so it came by the slower one, 300 ms later;
      (a retry that left before any answer to that attempt came back is judged as that
-              attempt was: both come from the same earlier loss)
+              attempt was: both come from the same earlier loss; so too when both reached
+              the responder before it answered, and its answers may be to either)
      unexplained  otherwise: every frame of that attempt came the fast way, yet the
               requester asked again; or the responder never answered a request it got. The
               bond caused it (a duplicate set a protocol back, an answer held up), or a peer
@@ -28,6 +33,7 @@ Two questions are answered:
    Over one clean link nothing is lost, so any retry there is unexplained."""
 from __future__ import annotations
 
+import bisect
 import struct
 import sys
 from collections import Counter, defaultdict
@@ -74,6 +80,17 @@ def frames_of(log: List[Tuple[float, bytes]], src: Tuple[int, int]) -> List[Fram
             if (tlog.sysid(raw), tlog.compid(raw)) == src]
 
 
+def link_marker(raw: bytes, link: str) -> Optional[int]:
+    """The count a datagram carries when it is link `link`'s own count marker (named
+    mbw:LINK or mbs:LINK, LINK the first 6 characters of the endpoint's name: both gateways
+    name the bond's links alike), None for anything else."""
+    m = tlog.count_marker(raw)
+    if m is None:
+        return None
+    name = (tlog.payload(raw) + bytes(18))[8:18].rstrip(b"\0")
+    return m[0] if name[4:] == link[:6].encode() else None
+
+
 def content(raw: bytes) -> tuple:
     """A frame without its sequence byte (what a renumbering gateway leaves alone)."""
     return (tlog.sysid(raw), tlog.compid(raw), tlog.msgid(raw), tlog.payload(raw))
@@ -87,29 +104,63 @@ class Direction:
     sent: List[Frame]
     delivered: List[Frame]
     dropped: Dict[str, set]          # link -> datagram indices it dropped
-    datagrams: Dict[str, int]        # link -> datagrams it received in this direction
+    datagrams: Dict[str, List[bytes]]  # link -> every datagram it received, in index order
+    counted: Dict[str, int]          # link -> datagrams its counters say it received
     renumbered: bool = False
     duplicates: int = 0
     lost_everywhere: int = 0         # sent, dropped by every link
     lost_by_bond: List[int] = field(default_factory=list)  # indices some link brought, lost
     lost_unhurt: List[int] = field(default_factory=list)   # indices every link brought, lost
     missing: int = 0                 # sent and never delivered
+    index_of: Dict[str, List[int]] = field(default_factory=dict)  # link -> frame -> datagram
 
     def key(self, f: Frame):
         return content(f.raw) if self.renumbered else f.raw
 
+    def _index(self, link: str, datagrams: List[bytes]) -> List[int]:
+        """The datagram index of each frame sent on `link`: its datagrams are the frames of
+        the sending gateway's log, in order, one each, and the link's own count markers
+        (each carrying the number of datagrams written on the link before it: its own
+        index, so the record is the whole of what the gateway wrote on the link)."""
+        assert len(datagrams) == self.counted[link], (
+            f"{self.name}: the emulator's record of link {link} holds {len(datagrams)} "
+            f"datagrams, its counters {self.counted[link]}")
+        index, markers = [], 0
+        for i, raw in enumerate(datagrams):
+            count = link_marker(raw, link)
+            if count is not None:
+                assert count == i, (f"{self.name}: link {link}'s count marker at datagram {i} "
+                                    f"carries {count}")
+                markers += 1
+                continue
+            k = len(index)
+            assert k < len(self.sent) and raw == self.sent[k].raw, (
+                f"{self.name}: link {link}'s datagram {i} (its frame {k}, after {markers} "
+                f"count markers) is not frame {k} of the gateway's log, of "
+                f"{len(self.sent)}: {raw.hex()} for "
+                f"{self.sent[k].raw.hex() if k < len(self.sent) else 'none'}")
+            index.append(i)
+        assert len(index) == len(self.sent), (
+            f"{self.name}: link {link} carried {len(index)} frames (and {markers} count "
+            f"markers), the gateway's log holds {len(self.sent)} frames to send")
+        return index
+
+    def frame_at(self, link: str, datagram: int) -> Optional[int]:
+        """The frame (its index in `sent`) that was datagram `datagram` of `link`, None for
+        a count marker."""
+        index = self.index_of[link]
+        k = bisect.bisect_left(index, datagram)
+        return k if k < len(index) and index[k] == datagram else None
+
     def account(self) -> "Direction":
-        n = len(self.sent)
-        for link, count in self.datagrams.items():
-            assert count == n, (f"{self.name}: link {link} carried {count} datagrams, the "
-                                 f"gateway's log holds {n} frames to send: the index of a "
-                                 f"datagram is not the frame's")
-        everywhere = set(range(n))
-        for d in self.dropped.values():
-            everywhere &= d
+        for link, datagrams in self.datagrams.items():
+            self.index_of[link] = self._index(link, datagrams)
+        for f, *at in zip(self.sent, *self.index_of.values()):
+            f.dropped_on = frozenset(l for l, i in zip(self.index_of, at)
+                                     if i in self.dropped[l])
+        everywhere = {i for i, f in enumerate(self.sent)
+                      if f.dropped_on == frozenset(self.dropped)}
         self.lost_everywhere = len(everywhere)
-        for i, f in enumerate(self.sent):
-            f.dropped_on = frozenset(l for l, d in self.dropped.items() if i in d)
         # Match each delivered frame to the frame sent that it is. Identical bytes recur (a
         # source's sequence byte wraps every 256 frames; a battery report may not change), so
         # among the sent frames with its bytes it is the newest one sent before it was
@@ -239,6 +290,21 @@ def _verdict(ex: Exchange, key, seq: List[Frame], j: int, answers: List[Frame],
               and a.delivered_at > lo), default=float("inf"))
     mine = [a for a in answers if lo <= a.t < hi]
     if not mine:
+        # The responder may have had the retry too before it answered: MAVSDK asks again
+        # both on a timeout and on a repeated answer, so two requests can leave together and
+        # arrive together. When the retry is the next attempt the responder had, its answers
+        # from `prev` on until the attempt after the retry are to either; if none of them
+        # came back before the retry left, it crossed the answer to `prev` (below).
+        arrived = sorted(a.delivered_at for a in seq[j:] if a.delivered_at is not None
+                         and a.delivered_at > lo)
+        if j >= 2 and arrived and arrived[0] == retry.delivered_at:
+            until = arrived[1] if len(arrived) > 1 else float("inf")
+            either = [a for a in answers if lo <= a.t < until]
+            if either and all(a.delivered_at is None or a.delivered_at > retry.t
+                              for a in either):
+                return verdicts[j - 1], (f"{where}: crossed the answer to the request of "
+                                         f"{prev.t:.3f}, both at the responder before it "
+                                         f"answered")
         return "unexplained", (f"{where}: the request sent at {prev.t:.3f} reached the "
                                f"responder, which did not answer it")
     got = [a for a in mine if not a.lost]

@@ -4,7 +4,8 @@ emulated links (tests/peers/cutlinks.py: linkemu with cuts that follow the traff
 ground-side mavbond, and a ground station (MAVSDK's clients, or MAVProxy) on TCP. Each
 gateway writes a flight log (a tlog endpoint): the air one holds exactly what the vehicle
 sent and what was delivered to it, the ground one what the ground station sent and what was
-delivered to it. Those two logs and the emulator's drop records are the evidence the tests
+delivered to it. Those two logs and the emulator's records (every datagram each link received,
+the gateways' count markers among them, and which it dropped) are the evidence the tests
 judge by; nothing is judged by how long anything took."""
 from __future__ import annotations
 
@@ -285,14 +286,20 @@ class Rig:
         # bond's. What the gateway holds for it may be a whole FTP burst (36 KB).
         ground_eps += [tcp_server("gcs", p["gcs"], tx_queue="1MiB"),
                        {"name": "log", "type": "tlog", "directory": str(self.tlog_dirs["ground"])}]
-        gbond = [{"name": "vehicle", "tx": "broadcast",
-                  **({"renumber": True} if self.renumber else {})}] if bonded else []
+        # The evidence knows frames by their bytes in both gateways' tlogs: a bond renumbers
+        # only when the run asks (the MAVProxy run, whose loss figure needs it).
+        gbond = [{"name": "vehicle", "tx": "broadcast", "renumber": self.renumber}] if bonded else []
         self.ground = lab.gateway(ground_eps, bonds=gbond,
                                   filters=self._filters("vehicle", "ground"),
                                   name=f"{self.name}-ground",
                                   status_socket=str(self.status["ground"]))
+        # Each link records every datagram it received (its bytes): the gateways write count
+        # markers of their own between the ends' frames, so a datagram's index is not a
+        # frame's; the record says which datagram was which (evidence.Direction).
+        self.received_logs = {l: self.dir / f"{l}-received.jsonl" for l in self.links}
         spec = [{"name": l, "listen_port": p[f"listen_{l}"], "forward_ports": p[f"ground_{l}"],
-                 "seed": SEEDS[l], **{"fast": FAST, "slow": SLOW, "clean": CLEAN}[l]}
+                 "seed": SEEDS[l], "log_received": str(self.received_logs[l]),
+                 **{"fast": FAST, "slow": SLOW, "clean": CLEAN}[l]}
                 for l in self.links]
         self.emu = EmuGroup(lab.workdir, self.name, spec)
         cuts_path = self.dir / "cuts.json"
@@ -310,7 +317,7 @@ class Rig:
                     "baud": BAUD}]
         air_eps += [udp_client(l, p[f"listen_{l}"], **amember) for l in self.links]
         air_eps.append({"name": "log", "type": "tlog", "directory": str(self.tlog_dirs["air"])})
-        abond = [{"name": "ground", "tx": "broadcast"}] if bonded else []
+        abond = [{"name": "ground", "tx": "broadcast", "renumber": False}] if bonded else []
         self.air = lab.gateway(air_eps, bonds=abond, filters=self._filters("ground", "air"),
                                name=f"{self.name}-air", status_socket=str(self.status["air"]))
         self.air.wait_log(r"\[uart:autopilot\] .* open at")
@@ -388,6 +395,18 @@ class Rig:
         self.wire.close()
         self.cuts_done = self.cuts_taken()
 
+    def frames_so_far(self, link: str, direction: str = "up") -> int:
+        """The frames (datagrams that are no count marker) `link` has received so far in
+        `direction`, from its record of what it received, which counters_now() has it write
+        out; read while it is still being written, what the record holds so far: never more
+        than came."""
+        from evidence import link_marker
+        self.emu.counters_now()
+        text = self.received_logs[link].read_text()
+        return sum(1 for line in text[:text.rfind("\n") + 1].splitlines()
+                   if (r := json.loads(line))["direction"] == direction
+                   and link_marker(bytes.fromhex(r["data"]), link) is None)
+
     def cuts_taken(self) -> List[dict]:
         if not self.cut_log.exists():
             return []
@@ -440,6 +459,18 @@ def link_drops(emu: EmuGroup, link: str, direction: str) -> set:
     return emu.dropped(link, direction)
 
 
+def link_datagrams(rig: Rig, link: str, direction: str) -> List[bytes]:
+    """Every datagram a link received in one direction, in index order (the emulator's record
+    of what it received, written as it stopped)."""
+    out = []
+    for line in rig.received_logs[link].read_text().splitlines():
+        r = json.loads(line)
+        if r["direction"] == direction:
+            assert r["index"] == len(out), f"{link} {direction}: the record skips to {r['index']}"
+            out.append(bytes.fromhex(r["data"]))
+    return out
+
+
 def gather(rig: Rig, renumbered: bool = False, steps: Optional[dict] = None,
            directions=("up", "down")) -> dict:
     """Both directions accounted and every protocol's retries judged, from the rig's logs;
@@ -447,16 +478,18 @@ def gather(rig: Rig, renumbered: bool = False, steps: Optional[dict] = None,
     from evidence import (Direction, frames_of, protocols, read_log, repeats)
     air, ground = read_log(rig.tlog_dirs["air"]), read_log(rig.tlog_dirs["ground"])
     out = {}
+
+    def links(direction: str) -> dict:
+        return dict(dropped={l: link_drops(rig.emu, l, direction) for l in rig.links},
+                    datagrams={l: link_datagrams(rig, l, direction) for l in rig.links},
+                    counted={l: rig.emu_counters[l][direction]["received"] for l in rig.links})
+
     if "up" in directions:
         out["up"] = Direction("vehicle -> GCS", frames_of(air, VEHICLE), frames_of(ground, VEHICLE),
-                              {l: link_drops(rig.emu, l, "up") for l in rig.links},
-                              {l: rig.emu_counters[l]["up"]["received"] for l in rig.links},
-                              renumbered=renumbered).account()
+                              renumbered=renumbered, **links("up")).account()
     if "down" in directions:
         out["down"] = Direction("GCS -> vehicle", frames_of(ground, GCS), frames_of(air, GCS),
-                                {l: link_drops(rig.emu, l, "down") for l in rig.links},
-                                {l: rig.emu_counters[l]["down"]["received"]
-                                 for l in rig.links}).account()
+                                **links("down")).account()
     if len(out) == 2:
         attempts = {name: d["attempts"] for name, d in (steps or {}).items()
                     if name in ("params", "mission_upload", "mission_download", "ftp")

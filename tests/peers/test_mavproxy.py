@@ -11,7 +11,8 @@ MAVProxy's `link` command is read.
 
 Its figures must be the bond's: the frames it counts lost (sequence gaps, as MAVProxy and
 QGroundControl count them) are exactly the frames lost on every link (the emulator's drop
-records; those after the last frame delivered show as a gap to nobody), which is the
+records, each dropped datagram known as a frame or a count marker by its record of what it
+received; those after the last frame delivered show as a gap to nobody), which is the
 number of gaps the ground gateway's renumbering stepped over (its status socket), and its
 loss percentage is that count over what was delivered plus it. MAVProxy is connected over
 TCP: a UDP socket of its default size overflows under the vehicle's parameter burst (300
@@ -20,72 +21,17 @@ from __future__ import annotations
 
 import json
 import os
-import re
-import subprocess
-import sys
 import time
 
-import pytest
-
+from mavproxy import MAVProxy, mavproxy_path
 from peerlab import HOST, PeerLab, Rig, gather, status_document
 
 ATTITUDE = 30
 
 
-def mavproxy_available() -> str:
-    try:
-        import MAVProxy  # noqa: F401
-    except ImportError as e:
-        pytest.skip(f"MAVProxy cannot run here (pip install MAVProxy: {e})")
-    return str(__import__("pathlib").Path(sys.executable).with_name("mavproxy.py"))
-
-
-class MAVProxy:
-    """mavproxy.py with its stdin a pipe (commands) and its stdout a file (read as it grows)."""
-
-    def __init__(self, workdir, master: str):
-        self.out_path = workdir / "mavproxy.out"
-        self._out = open(self.out_path, "wb")
-        self.proc = subprocess.Popen(
-            [mavproxy_available(), f"--master={master}", "--no-state", "--default-modules=param",
-             "--streamrate=-1", "--source-system=255"],
-            stdin=subprocess.PIPE, stdout=self._out, stderr=subprocess.STDOUT,
-            cwd=workdir, env={"PYTHONUNBUFFERED": "1", "PATH": "/usr/bin:/bin",
-                              "HOME": str(workdir)})
-
-    def text(self) -> str:
-        return self.out_path.read_text(errors="replace")
-
-    def send(self, line: str) -> None:
-        self.proc.stdin.write((line + "\n").encode())
-        self.proc.stdin.flush()
-
-    def wait_for(self, pattern: str, count: int = 1, timeout: float = 60.0) -> list:
-        deadline = time.monotonic() + timeout
-        rx = re.compile(pattern)
-        while True:
-            found = rx.findall(self.text())
-            if len(found) >= count:
-                return found
-            assert self.proc.poll() is None, f"MAVProxy exited: {self.text()[-3000:]}"
-            assert time.monotonic() < deadline, \
-                f"MAVProxy: no {pattern!r} x{count} within {timeout} s: {self.text()[-3000:]}"
-            time.sleep(0.05)
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                self.send("exit")
-                self.proc.wait(10)
-            except (OSError, subprocess.TimeoutExpired):
-                self.proc.kill()
-                self.proc.wait()
-        self._out.close()
-
-
 def test_mavproxy_link_loss_is_the_bonds_and_param_fetch_completes(mavsdk_available, mavbond_bin,
                                                                    plugin_dir, tmp_path):
-    mavproxy_available()
+    mavproxy_path()
     lab = PeerLab(mavbond_bin, plugin_dir, tmp_path / "mavproxy")
     cuts = [{"on": {"link": "fast", "dir": "up", "msgid": ATTITUDE, "count": 100},
              "do": [["cut", "fast"], ["cut", "slow"]]},
@@ -94,7 +40,9 @@ def test_mavproxy_link_loss_is_the_bonds_and_param_fetch_completes(mavsdk_availa
     mp = None
     try:
         rig = Rig(lab, "dedup", cuts, renumber=True, name="mavproxy").start_links()
-        mp = MAVProxy(rig.dir, f"tcp:{HOST}:{rig.ports['gcs']}")
+        mp = MAVProxy(rig.dir, f"tcp:{HOST}:{rig.ports['gcs']}",
+                      ["--no-state", "--default-modules=param", "--streamrate=-1",
+                       "--source-system=255"])
         rig.ground.wait_log(r"\[tcp:gcs\].*(accepted|new client|connected)", timeout=20)
         rig.start_vehicle()
         mp.wait_for(r"Received 300 parameters")          # its own fetch on connecting
@@ -109,15 +57,17 @@ def test_mavproxy_link_loss_is_the_bonds_and_param_fetch_completes(mavsdk_availa
         while len(rig.cut_log.read_text().splitlines() if rig.cut_log.exists() else []) < 2:
             assert time.monotonic() < deadline, "the cut never happened"
             time.sleep(0.1)
-        restored = json.loads(rig.cut_log.read_text().splitlines()[-1])["index"]
-        while rig.emu.counters_now()["fast"]["up"]["received"] < restored + 100:
+        # By frames, not datagrams: the links carry the gateway's count markers between
+        # the vehicle's frames.
+        restored = json.loads(rig.cut_log.read_text().splitlines()[-1])["frame"]
+        while rig.frames_so_far("fast") < restored + 100:
             assert time.monotonic() < deadline, "the vehicle's stream stopped"
             time.sleep(0.1)
         rig.stop_vehicle()
         status = status_document(rig.status["ground"])
         mp.send("link")
-        line = mp.wait_for(r"link \S+ (OK|DOWN) \((\d+) packets, \d+ bytes, [-\d.]+s delay, "
-                           r"(\d+) lost, ([\d.]+)% loss")[-1]
+        _, line = mp.wait_for(r"link \S+ (OK|DOWN) \((\d+) packets, \d+ bytes, [-\d.]+s delay, "
+                              r"(\d+) lost, ([\d.]+)% loss")[-1]
         mp.stop()
         rig.finish()
         ev = gather(rig, renumbered=True, directions=("up",))
@@ -126,7 +76,7 @@ def test_mavproxy_link_loss_is_the_bonds_and_param_fetch_completes(mavsdk_availa
             mp.stop()
         lab.kill()
 
-    packets, lost, pct = int(line[1]), int(line[2]), line[3]
+    packets, lost, pct = int(line[2]), int(line[3]), line[4]
     up = ev["up"]
     delivered = [i for i, f in enumerate(up.sent) if f.delivered_at is not None]
     # Lost on every link, between the first and the last frame delivered (a loss shows as a

@@ -30,6 +30,7 @@ const mavbond_link& FakeHost::add_link(const std::string& name, const std::strin
     auto slot = std::make_unique<LinkSlot>();
     slot->name = name;
     slot->bond = bond;
+    slot->endpoint = name.substr(0, name.find('@'));
     slot->link.struct_size = sizeof(mavbond_link);
     slot->link.id = static_cast<uint32_t>(links_.size());
     slot->link.bond_id = MAVBOND_NO_BOND;
@@ -49,6 +50,7 @@ const mavbond_link& FakeHost::add_link(const std::string& name, const std::strin
     // Names are pointed at after every slot exists (the strings live in the slots).
     for (auto& l : links_) {
         l->link.name = l->name.c_str();
+        l->link.endpoint = l->endpoint.c_str();
         l->link.bond_name = l->bond.empty() ? nullptr : l->bond.c_str();
     }
     return links_.back()->link;
@@ -250,6 +252,9 @@ int FakeHost::bond_state(uint32_t bond_id, mavbond_bond_state* out) {
     auto it = active_link.find(bond_id);
     out->active_link_id = it == active_link.end() ? UINT32_MAX : it->second;
     out->switches = switches[bond_id];
+    auto resend = peer_resend.find(bond_id);
+    out->peer_resend_ns = resend == peer_resend.end() ? 0 : resend->second;
+    out->peer_resend_announced = resend != peer_resend.end();
     return 0;
 }
 

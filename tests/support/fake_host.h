@@ -73,6 +73,7 @@ public:
     std::vector<std::string> logs;
     std::map<uint32_t, uint32_t> active_link;  // bond id -> link id
     std::map<uint32_t, uint64_t> switches;     // bond id -> changes of the active link
+    std::map<uint32_t, uint64_t> peer_resend;  // bond id -> the far side's resend (ns)
     std::map<uint32_t, mavbond_link_counters> counters;  // link id -> what link_counters says
 
 private:
@@ -82,7 +83,7 @@ private:
         std::function<bool()> fn;
     };
     struct LinkSlot {
-        std::string name, bond;
+        std::string name, bond, endpoint;  // endpoint: the name before '@' (a learned peer's server)
         mavbond_link link{};
     };
     uint64_t now_ns_ = 1'000'000'000;

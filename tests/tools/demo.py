@@ -322,7 +322,7 @@ endpoints:
   - {{name: lte, type: udp, mode: server, address: 127.0.0.1:{gb}, bond: vehicle}}
   - {{name: gcs, type: udp, mode: server, address: 127.0.0.1:{p_gcs}}}
 bonds:
-  - {{name: vehicle, tx: broadcast}}
+  - {{name: vehicle, tx: broadcast, renumber: false}}   # the demo knows deliveries by their bytes
 filters:
   - {{plugin: dedup, bonds: [vehicle]}}
 {stats_filter}"""
@@ -333,7 +333,7 @@ endpoints:
   - {{name: radio, type: udp, mode: client, address: 127.0.0.1:{la}, bond: ground}}
   - {{name: lte, type: udp, mode: client, address: 127.0.0.1:{lb}, bond: ground}}
 bonds:
-  - {{name: ground, tx: broadcast}}
+  - {{name: ground, tx: broadcast, renumber: false}}
 filters:
   - {{plugin: dedup, bonds: [ground]}}
 """

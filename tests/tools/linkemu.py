@@ -10,6 +10,9 @@ last sender wins). Everything from A goes to B ("up" direction); whatever B send
 emulator's source socket goes to A's last address ("down" direction). Datagrams from any other
 address than --forward on the source socket are ignored (counted as `foreign`).
 
+Down tee: `--down-tee HOST:PORT` (repeatable; "down_tee" in a group spec) also sends each down
+datagram there as it goes to A: a sniffer of what A received. Counters are unchanged.
+
 Tee: `--forward` may be given several times. Each up datagram, when due, is sent to every
 forward address, one right after the other, before any other datagram is sent. The down
 direction is taken from the FIRST forward address only; replies from the others are counted as
@@ -59,10 +62,11 @@ receiver of a tee sees the same interleaving of the links. SPEC.json is a list o
      {"name": "lte", "listen": "127.0.0.1:14602", "forward": "127.0.0.1:14552", "seed": 2}]
 Each link takes the CLI's link options (with - or _, e.g. "up-loss" or "up_loss"; "reorder":
 true; values as strings like "1%", "40ms" or plain numbers: probability, seconds, bit/s) and
-"source", "log_drops", "log_sends" (its own files). Each link keeps its own seed and decisions,
-which depend only on (seed, direction, index): link "radio" with seed 1 drops exactly what a
-single linkemu with --seed 1 and the same options drops. Outages count from the group's start.
---group takes --duration; every other option goes in the spec. Banner: one line per link,
+"source", "log_drops", "log_sends", "log_received" (its own files). Each link keeps its own
+seed and decisions, which depend only on (seed, direction, index): link "radio" with seed 1
+drops exactly what a single linkemu with --seed 1 and the same options drops. Outages count
+from the group's start. --group takes --duration; every other option goes in the spec.
+Banner: one line per link,
 `linkemu: link NAME: listening on H:P, forwarding to H:P[, H:P] from H:P, seed N`, then,
 once the group's clock has started (its outages count from before this line),
 `linkemu: group of N links listening`.
@@ -80,6 +84,10 @@ unless a later line drops the same index for "queue").
 unrounded), n its place among all the sends of the process (of every link of a group). This is
 the emulator's own account of what it decided and did, independent of anybody's scheduling:
 sent - due is how late the loop was.
+`--log-received FILE` writes one JSON line per datagram received: {"direction", "index",
+"data"}, data its bytes as they arrived (hex), whatever became of it: with the drop log, the
+account of every index (a receiver that writes datagrams of its own between the ones it
+relays, such as mavbond's count markers, is known datagram by datagram).
 
 Importable:  from linkemu import LinkEmulator, LinkGroup
     emu = LinkEmulator(listen="127.0.0.1:0", forward="127.0.0.1:14550", seed=1, loss="1%",
@@ -90,6 +98,8 @@ Importable:  from linkemu import LinkEmulator, LinkGroup
                             loss="1%"), dict(name="lte", ...)], record_drops=True)
     group.start(); group.link("radio").listen_addr; group.counters()["radio"]["up"];
     group.drops("radio"); group.sends("radio")   # sends: record_sends=True
+    group.received("radio")                      # record_received=True
+    group.request_rebind("lte")   # a NAT rebinding: B hears the link from a new source port
 Options take the CLI's strings ("1%", "40ms") or plain numbers (probability, seconds, bit/s).
 
 Stdlib only (Python 3.11).
@@ -296,7 +306,7 @@ def resolve_configs(opts: Dict[str, object]) -> Dict[str, DirConfig]:
 
 class _Direction:
     def __init__(self, name: str, cfg: DirConfig, seed: int, record: Optional[list],
-                 sends: Optional[list] = None):
+                 sends: Optional[list] = None, received: Optional[list] = None):
         self.name = name
         self.up = name == "up"
         self.cfg = cfg
@@ -305,6 +315,7 @@ class _Direction:
         self.jrng = random.Random(f"linkemu:{seed}:{name}:jitter")
         self.record = record
         self.sends = sends             # one dict per datagram sent, when asked for
+        self.received = received       # one dict per datagram received, when asked for
         self.link: Optional["Link"] = None
         self.index = 0
         self.ge_bad = False
@@ -332,6 +343,8 @@ class _Direction:
         c = self.c
         c["received"] += 1
         c["bytes_received"] += len(data)
+        if self.received is not None:
+            self.received.append(dict(direction=self.name, index=idx, data=data.hex()))
         r = self.rng.random
         # Always five draws per datagram: decisions depend on (seed, index) only.
         u_loss, u_gt, u_gl, u_cor, u_bit = r(), r(), r(), r(), r()
@@ -465,7 +478,8 @@ class Link:
     def __init__(self, name: str = "", listen="127.0.0.1:0", forward="127.0.0.1:14550", *,
                  seed: Optional[int] = None, source=None, log_drops: Optional[str] = None,
                  record_drops: bool = False, log_sends: Optional[str] = None,
-                 record_sends: bool = False, **link_opts):
+                 record_sends: bool = False, log_received: Optional[str] = None,
+                 record_received: bool = False, down_tee=None, **link_opts):
         self.name = name
         self.configs = resolve_configs(link_opts)
         self.seed = random.SystemRandom().randrange(2 ** 32) if seed is None else int(seed)
@@ -480,11 +494,16 @@ class Link:
             ffam = fam
             self.forward_addrs.append(addr)
         self.forward_addr = self.forward_addrs[0]    # the only one replies are taken from
+        # Where each down datagram also goes, when it is sent to A (a sniffer of that side).
+        self.down_tee: List[tuple] = [
+            _resolve(*parse_addr(t, "down tee address"))[1]
+            for t in (_forward_list(down_tee) if down_tee else [])]
         if source is not None:
             shost, sport = parse_addr(source, "--source address")
             _, saddr = _resolve(shost, sport)
         else:
             saddr = ("::", 0) if ffam == socket.AF_INET6 else ("0.0.0.0", 0)
+        self._source = (ffam, saddr)
         self.sock_a = _udp_socket(lfam, laddr)
         try:
             self.sock_b = _udp_socket(ffam, saddr)
@@ -495,13 +514,17 @@ class Link:
         self.source_addr = self.sock_b.getsockname()[:2]
         self._record: Optional[list] = [] if (record_drops or log_drops) else None
         self._sends: Optional[list] = [] if (record_sends or log_sends) else None
-        self._logs = [_JsonLog(log_drops, self._record), _JsonLog(log_sends, self._sends)]
-        self.dirs = {d: _Direction(d, self.configs[d], self.seed, self._record, self._sends)
+        self._received: Optional[list] = [] if (record_received or log_received) else None
+        self._logs = [_JsonLog(log_drops, self._record), _JsonLog(log_sends, self._sends),
+                      _JsonLog(log_received, self._received)]
+        self.dirs = {d: _Direction(d, self.configs[d], self.seed, self._record, self._sends,
+                                   self._received)
                      for d in DIRECTIONS}
         for d in self.dirs.values():
             d.link = self
         self.peer_a: Optional[tuple] = None
         self.foreign = 0
+        self.rebinds = 0
         self.closed = False
 
     def counters(self, rel: float, with_name: bool = False) -> Dict[str, dict]:
@@ -517,11 +540,28 @@ class Link:
         """Drop (and corruption) records so far; needs record_drops=True or log_drops."""
         return list(self._record or [])
 
+    def rebind(self) -> socket.socket:
+        """A NAT rebinding: side B is talked to from a new source socket (a new port on the
+        same address) from now on. Returns the old socket, for the loop to forget and close:
+        what B sends to the old port after this goes nowhere, as a NAT drops what comes to a
+        mapping it gave up."""
+        fam, (host, *_rest) = self._source
+        old = self.sock_b
+        self.sock_b = _udp_socket(fam, (host, 0) if fam == socket.AF_INET else (host, 0, 0, 0))
+        self.source_addr = self.sock_b.getsockname()[:2]
+        self.rebinds += 1
+        return old
+
     def sends(self) -> List[dict]:
         """One record per datagram sent: {"direction", "index", "arrived", "due", "sent", "n"},
         times in s since the start, n its place in the group's sends; needs record_sends=True
         or log_sends."""
         return list(self._sends or [])
+
+    def received(self) -> List[dict]:
+        """One record per datagram received: {"direction", "index", "data"}, data its bytes
+        as they arrived (hex); needs record_received=True or log_received."""
+        return list(self._received or [])
 
     def flush_logs(self) -> None:
         for log in self._logs:
@@ -554,7 +594,8 @@ class LinkGroup:
     """
 
     def __init__(self, links: Sequence = (), *, duration=None, out: Optional[IO[str]] = None,
-                 record_drops: bool = False, record_sends: bool = False):
+                 record_drops: bool = False, record_sends: bool = False,
+                 record_received: bool = False):
         self.links: List[Link] = []
         try:
             for spec in links:
@@ -562,6 +603,7 @@ class LinkGroup:
                     spec = dict(spec)
                     spec.setdefault("record_drops", record_drops)
                     spec.setdefault("record_sends", record_sends)
+                    spec.setdefault("record_received", record_received)
                     spec = Link(**spec)
                 self.links.append(spec)
         except BaseException:
@@ -577,6 +619,7 @@ class LinkGroup:
         self.t0: Optional[float] = None
         self._stop = False
         self._dump = False
+        self._rebind: List[str] = []
         self._rpipe, self._wpipe = os.pipe()
         os.set_blocking(self._rpipe, False)
         os.set_blocking(self._wpipe, False)
@@ -604,6 +647,13 @@ class LinkGroup:
 
     def request_dump(self) -> None:
         self._dump = True
+        self._wake()
+
+    def request_rebind(self, name: str) -> None:
+        """A NAT rebinding of link `name` (Link.rebind), taken by the loop between two
+        datagrams: whatever is due after it leaves from the new source port."""
+        self.link(name)   # KeyError now, not in the loop
+        self._rebind.append(name)
         self._wake()
 
     def start(self):
@@ -650,6 +700,9 @@ class LinkGroup:
 
     def sends(self, name: str) -> List[dict]:
         return self.link(name).sends()
+
+    def received(self, name: str) -> List[dict]:
+        return self.link(name).received()
 
     def _counter_rows(self) -> List[dict]:
         return [row for per_link in self.counters().values() for row in per_link.values()]
@@ -703,6 +756,8 @@ class LinkGroup:
                     else:
                         try:
                             link.sock_a.sendto(data, link.peer_a)
+                            for addr in link.down_tee:
+                                link.sock_a.sendto(data, addr)
                         except OSError:
                             ok = False
                     if ok:
@@ -718,6 +773,13 @@ class LinkGroup:
                 if self._dump:
                     self._dump = False
                     self.dump()
+                while self._rebind:
+                    link = self.link(self._rebind.pop(0))
+                    old = link.rebind()
+                    del role[old]
+                    role[link.sock_b] = (link, False)
+                    rlist = [rp, *role]
+                    old.close()
                 # 2. wait for input or the next due time
                 timeout = min(deadline - now, IDLE_WAKE)
                 if heap:
@@ -797,6 +859,9 @@ class LinkEmulator(LinkGroup):
     def sends(self) -> List[dict]:
         return self.links[0].sends()
 
+    def received(self) -> List[dict]:
+        return self.links[0].received()
+
     def _counter_rows(self) -> List[dict]:
         return list(self.counters().values())
 
@@ -825,6 +890,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "docstring); instead of --listen/--forward and link options")
     p.add_argument("--source", metavar="HOST:PORT",
                    help="bind the socket that talks to B here (default: ephemeral port)")
+    p.add_argument("--down-tee", action="append", metavar="HOST:PORT",
+                   help="also send every down datagram here as it goes to A (repeatable): a "
+                        "sniffer of what A received")
     p.add_argument("--seed", type=int, help="random seed (default: random, printed on stderr)")
     p.add_argument("--duration", metavar="T", help="exit by itself after T (e.g. 30s)")
     p.add_argument("--log-drops", metavar="FILE",
@@ -832,6 +900,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-sends", metavar="FILE",
                    help="write one JSON line per datagram sent: index, arrival, due and send "
                         "times")
+    p.add_argument("--log-received", metavar="FILE",
+                   help="write one JSON line per datagram received: index and bytes (hex)")
     for name, (_, metavar, help_) in PARAMS.items():
         flag = name.replace("_", "-")
         for prefix, h in (("", help_), ("up-", argparse.SUPPRESS), ("down-", argparse.SUPPRESS)):
@@ -847,13 +917,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_LINK_KEYS = ("name", "listen", "forward", "seed", "source", "log_drops", "log_sends")
+_LINK_KEYS = ("name", "listen", "forward", "seed", "source", "log_drops", "log_sends",
+              "log_received", "down_tee")
 
 
 def load_group_spec(path: str) -> List[dict]:
     """The --group file: a JSON list of links, each {"name", "listen", "forward" (one address
-    or a list), "seed", optional "source", "log_drops", "log_sends", and link options named as
-    on the command line ("loss", "up-delay" or "up_delay", "outage": [...], "reorder": true)}."""
+    or a list), "seed", optional "source", "log_drops", "log_sends", "log_received", and link
+    options named as on the command line ("loss", "up-delay" or "up_delay", "outage": [...],
+    "reorder": true)}."""
     with open(path) as f:
         spec = json.load(f)
     if not isinstance(spec, list) or not spec:
@@ -882,7 +954,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if a.group:
         single = [f for f, v in (("--listen", a.listen), ("--forward", a.forward),
                                  ("--source", a.source), ("--seed", a.seed),
-                                 ("--log-drops", a.log_drops), ("--log-sends", a.log_sends))
+                                 ("--down-tee", a.down_tee),
+                                 ("--log-drops", a.log_drops), ("--log-sends", a.log_sends),
+                                 ("--log-received", a.log_received))
                   if v is not None]
         if single or link_opts:
             parser.error(f"with --group, {', '.join(single) or 'link options'} go in the "
@@ -895,7 +969,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         else:
             emu = LinkEmulator(a.listen, a.forward, seed=a.seed, duration=a.duration,
                                source=a.source, log_drops=a.log_drops, log_sends=a.log_sends,
-                               **link_opts)
+                               log_received=a.log_received,
+                               down_tee=a.down_tee, **link_opts)
     except (ValueError, TypeError) as e:
         parser.error(str(e))
     except OSError as e:

@@ -155,6 +155,19 @@ def payload(frame: bytes) -> bytes:
     return frame[h:h + frame[1]]
 
 
+def count_marker(frame: bytes) -> Optional[Tuple[int, bool]]:
+    """(count, standby) of a mavbond count marker (a NAMED_VALUE_INT named mbw:LINK or
+    mbs:LINK: mavbond.yaml(5), LINK ACCOUNTING), None for any other frame. A marker is the
+    link's own, written by the endpoint with a counter of its own: not part of any stream."""
+    if msgid(frame) != 252:
+        return None
+    body = payload(frame) + bytes(18)        # MAVLink 2 trims trailing zeros
+    name = body[8:18].rstrip(b"\0")
+    if not (name.startswith(b"mbw:") or name.startswith(b"mbs:")):
+        return None
+    return int.from_bytes(body[4:8], "little"), name.startswith(b"mbs:")
+
+
 # --- CRC (pymavlink) ----------------------------------------------------------------------
 
 _crc_extra: Optional[dict] = None

@@ -1,14 +1,18 @@
 // Config loader: the shipped files load, valid YAML maps to the right values, and every kind of
 // malformed config is refused with its exact "file:line:column: message".
 #include "config/config.h"
+#include "config/listeners.h"
 #include "endpoints/endpoint_types.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <sys/stat.h>
+
 #include <cstdio>
 #include <cstdlib>
 #include <string>
+#include <vector>
 
 namespace mavbond {
 namespace {
@@ -31,6 +35,41 @@ std::string source_root() {
     return root ? root : "";
 }
 
+/// A key file (64 hex digits, mode 0600) in a fresh directory, removed with it.
+class TempKey {
+public:
+    TempKey() {
+        char tmpl[] = "/tmp/mavbond-config-XXXXXX";
+        dir_ = mkdtemp(tmpl);
+        path_ = dir_ + "/bond.key";
+        FILE* f = fopen(path_.c_str(), "w");
+        fputs("000102030405060708090a0b0c0d0e0f101112131415161718191a1b1c1d1e1f\n", f);
+        fclose(f);
+        chmod(path_.c_str(), 0600);
+    }
+    ~TempKey() {
+        unlink(path_.c_str());
+        rmdir(dir_.c_str());
+    }
+    const std::string& path() const { return path_; }
+
+private:
+    std::string dir_, path_;
+};
+
+/// A shipped file as the loader reads it, its signed bond's key (/etc/mavbond/bond.key, which
+/// a test machine has not) a temporary one: the only change.
+Result<Config> load_shipped(const std::string& path, const TempKey& key) {
+    auto text = read_text_file(path);
+    if (!text)
+        return text.error();
+    std::string s = text.value();
+    const std::string shipped_key = "/etc/mavbond/bond.key";
+    for (size_t at = s.find(shipped_key); at != std::string::npos; at = s.find(shipped_key, at))
+        s.replace(at, shipped_key.size(), key.path());
+    return parse_config(s, path, endpoint_schemas());
+}
+
 // --- the shipped files -----------------------------------------------------------------------
 
 class ShippedConfig : public testing::TestWithParam<const char*> {};
@@ -38,7 +77,8 @@ class ShippedConfig : public testing::TestWithParam<const char*> {};
 TEST_P(ShippedConfig, Loads) {
     ASSERT_FALSE(source_root().empty()) << "MAVBOND_SOURCE_ROOT is not set (run via meson test)";
     std::string path = source_root() + "/" + GetParam();
-    auto config = load_config(path, endpoint_schemas());
+    TempKey key;
+    auto config = load_shipped(path, key);
     ASSERT_TRUE(config.has_value()) << config.error().message;
     EXPECT_EQ(path, config->path);
     EXPECT_FALSE(config->endpoints.empty());
@@ -72,7 +112,8 @@ TEST(ShippedConfig, DefaultIsHarmless) {
 }
 
 TEST(ShippedConfig, AirSide) {
-    auto config = load_config(source_root() + "/conf/examples/air-side.yaml", endpoint_schemas());
+    TempKey key;
+    auto config = load_shipped(source_root() + "/conf/examples/air-side.yaml", key);
     ASSERT_TRUE(config.has_value()) << config.error().message;
     ASSERT_EQ(3u, config->endpoints.size());
     const auto& fc = config->endpoints[0];
@@ -89,6 +130,10 @@ TEST(ShippedConfig, AirSide) {
     EXPECT_EQ("vehicle", config->endpoints[2].bond);
     ASSERT_EQ(1u, config->bonds.size());
     EXPECT_EQ("vehicle", config->bonds[0].name);
+    // The bond signs its internet-facing link, and only that one.
+    EXPECT_EQ(std::vector<std::string>{"lte"}, config->bonds[0].signing.links);
+    EXPECT_TRUE(config->endpoints[2].signing.by_bond);
+    EXPECT_FALSE(config->endpoints[1].signing.enabled);
     ASSERT_EQ(3u, config->filters.size());
     EXPECT_EQ("dedup", config->filters[0].plugin);
     EXPECT_EQ("linkswitch", config->filters[1].plugin);
@@ -96,8 +141,18 @@ TEST(ShippedConfig, AirSide) {
 }
 
 TEST(ShippedConfig, GroundSide) {
-    auto config = load_config(source_root() + "/conf/examples/ground-side.yaml", endpoint_schemas());
+    TempKey key;
+    auto config = load_shipped(source_root() + "/conf/examples/ground-side.yaml", key);
     ASSERT_TRUE(config.has_value()) << config.error().message;
+    // The LTE port (open to the internet) is signed by the bond; every other listener is on
+    // loopback.
+    for (const auto& ep : config->endpoints) {
+        if (ep.name == "lte") {
+            EXPECT_TRUE(ep.signing.by_bond);
+        } else if (ep.schema->mode && std::string_view(ep.schema->mode) == "server") {
+            EXPECT_EQ("127.0.0.1", ep.options.text("address")) << ep.name;
+        }
+    }
     int members = 0;
     bool udp_server_14550 = false;
     bool tcp_server_5760 = false;
@@ -331,6 +386,44 @@ TEST(ConfigParse, GarbageNeverThrows) {
 
 // --- parse_duration --------------------------------------------------------------------------
 
+TEST(ListenAddresses, OverlapOnlyWhereTheKernelWouldRefuseTheSecondBind) {
+    EXPECT_TRUE(listen_addresses_overlap("127.0.0.1", 14550, "127.0.0.1", 14550));
+    EXPECT_FALSE(listen_addresses_overlap("127.0.0.1", 14550, "127.0.0.1", 14551));
+    EXPECT_FALSE(listen_addresses_overlap("127.0.0.1", 14550, "127.0.0.2", 14550));
+    EXPECT_TRUE(listen_addresses_overlap("0.0.0.0", 14550, "192.0.2.1", 14550));
+    EXPECT_TRUE(listen_addresses_overlap("192.0.2.1", 14550, "0.0.0.0", 14550));
+    EXPECT_FALSE(listen_addresses_overlap("0.0.0.0", 14550, "::1", 14550)) << "IPv4 only";
+    EXPECT_TRUE(listen_addresses_overlap("::", 14550, "127.0.0.1", 14550)) << "dual stack";
+    EXPECT_TRUE(listen_addresses_overlap("0.0.0.0", 14550, "::", 14550));
+    EXPECT_FALSE(listen_addresses_overlap("::1", 14550, "127.0.0.1", 14550));
+    EXPECT_TRUE(listen_addresses_overlap("::1", 14550, "0:0:0:0:0:0:0:1", 14550)) << "one address";
+    EXPECT_TRUE(listen_addresses_overlap("gs.example", 5760, "gs.example", 5760));
+    EXPECT_FALSE(listen_addresses_overlap("gs.example", 5760, "127.0.0.1", 5760))
+        << "a name resolves at start only (a taken port fails the bind there)";
+}
+
+TEST(ListenAddresses, OneProtocolsServersOnlyAndClientsNever) {
+    auto ok = parse(R"(
+endpoints:
+  - {name: a, type: udp, mode: server, address: 0.0.0.0:14550}
+  - {name: b, type: tcp, mode: server, address: 0.0.0.0:14550}
+  - {name: c, type: udp, mode: client, address: 127.0.0.1:14550}
+  - {name: d, type: udp, mode: server, address: "[::1]:14551"}
+  - {name: e, type: udp, mode: server, address: 127.0.0.1:14551}
+)");
+    EXPECT_TRUE(ok.has_value()) << ok.error().message;
+    auto taken = parse(R"(
+endpoints:
+  - {name: a, type: tcp, mode: server, address: "[::]:5760"}
+  - {name: b, type: udp, mode: server, address: 127.0.0.1:5760}
+  - {name: c, type: tcp, mode: server, address: localhost:5760}
+)");
+    ASSERT_FALSE(taken.has_value());
+    EXPECT_EQ("t.yaml:4:49: endpoint 'c': tcp address 127.0.0.1:5760 is taken by endpoint 'a' "
+              "([::]:5760, declared at t.yaml:2:5): two servers cannot listen on one address",
+              taken.error().message);
+}
+
 TEST(ParseDuration, Units) {
     EXPECT_EQ(nanoseconds(5), parse_duration("5ns"));
     EXPECT_EQ(microseconds(7), parse_duration("7us"));
@@ -377,7 +470,8 @@ TEST(LoadConfig, ErrorNamesTheFile) {
     auto config = load_config(path, endpoint_schemas());
     unlink(path);
     ASSERT_FALSE(config.has_value());
-    EXPECT_EQ(std::string(path) + ":2:42: endpoint 'gcs': unknown key 'adress'",
+    EXPECT_EQ(std::string(path) + ":2:42: endpoint 'gcs': unknown key 'adress' (did you mean "
+              "'address'? a udp server endpoint takes: address, allow_in, allow_out, block_in, block_out, bond, cost, mode, name, peer_timeout, radio_status, rx_buffer, signing, standby_carries, tx_queue, tx_rate, type)",
               config.error().message);
 }
 
@@ -400,8 +494,11 @@ struct BadCase {
 const BadCase kBadCases[] = {
     // --- file level
     {"SyntaxError", "endpoints: [a, b\nlog_level: info\n",
-     "t.yaml:2:10: end of sequence flow not found"},
-    {"SyntaxBadIndent", "log_level: info\n  endpoints: []\n", "t.yaml:2:12: illegal map value"},
+     "t.yaml:2:10: a '[' before this has no closing ']' (YAML: end of sequence flow not found)"},
+    {"SyntaxBadIndent", "log_level: info\n  endpoints: []\n",
+     "t.yaml:2:12: this line's key (column 3) is indented deeper than the key above it (column 1), "
+     "which has its value already: the keys of one map start in the same column (YAML: illegal "
+     "map value)"},
     {"EmptyFile", "", "t.yaml:1:1: the file is empty (it needs at least an 'endpoints:' list)"},
     {"OnlyComments", "# nothing here\n",
      "t.yaml:1:1: the file is empty (it needs at least an 'endpoints:' list)"},
@@ -410,7 +507,10 @@ const BadCase kBadCases[] = {
     {"TopLevelScalar", "hello\n", "t.yaml:1:1: the top level must be a map of keys, not a scalar"},
     {"TwoDocuments", GCS "---\nlog_level: info\n",
      "t.yaml:7:1: only one YAML document is allowed (found a second one after '---')"},
-    {"UnknownTopKey", GCS "log_levle: info\n", "t.yaml:6:1: unknown key 'log_levle'"},
+    {"UnknownTopKey", GCS "log_levle: info\n",
+     "t.yaml:6:1: unknown key 'log_levle' (did you mean 'log_level'? it takes: bonds, endpoints, "
+     "filters, identity, link_events, log_level, metrics, plugin_dir, report_interval, "
+     "route_timeout, status_socket, tx_classes, unknown_messages)"},
     {"DuplicateTopKey", "log_level: info\n" GCS "log_level: debug\n",
      "t.yaml:7:1: duplicate key 'log_level'"},
     {"ComplexKey", GCS "? [a]\n: 1\n", "t.yaml:6:3: a key must be a plain word, not a sequence"},
@@ -450,7 +550,8 @@ const BadCase kBadCases[] = {
     {"EndpointBadName", "endpoints:\n  - name: my gcs\n",
      "t.yaml:2:11: endpoint #1: invalid name 'my gcs' (allowed characters: A-Z a-z 0-9 _ . -)"},
     {"UnknownEndpointKey", GCS "    adress: 0.0.0.0:14550\n",
-     "t.yaml:6:5: endpoint 'gcs': unknown key 'adress'"},
+     "t.yaml:6:5: endpoint 'gcs': unknown key 'adress' (did you mean 'address'? a udp server "
+     "endpoint takes: address, allow_in, allow_out, block_in, block_out, bond, cost, mode, name, peer_timeout, radio_status, rx_buffer, signing, standby_carries, tx_queue, tx_rate, type)"},
     {"DuplicateEndpointKey", GCS "    mode: client\n",
      "t.yaml:6:5: endpoint 'gcs': duplicate key 'mode'"},
     {"DuplicateEndpointName", GCS "  - {name: gcs, type: udp, mode: client, address: 1.2.3.4:5}\n",
@@ -500,8 +601,8 @@ const BadCase kBadCases[] = {
     {"BadIpv6", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::g]:14550'}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': '[::g]' is not an IPv6 address"},
     {"Ipv6Unquoted", "endpoints:\n  - name: gcs\n    type: udp\n    mode: server\n    address: [::1]:14550\n",
-     "t.yaml:5:19: end of map not found (an IPv6 address in brackets is quoted in YAML: "
-     "address: \"[::1]:14550\")"},
+     "t.yaml:5:19: an IPv6 address in brackets is quoted in YAML: address: \"[::1]:14550\" "
+     "(YAML: end of map not found)"},
     {"Ipv6NoPort", "endpoints:\n  - {name: gcs, type: udp, mode: client, address: '[::1]'}\n",
      "t.yaml:2:51: endpoint 'gcs': 'address': '[::1]' needs a port after the brackets "
      "([::1]:14550)"},
@@ -554,7 +655,8 @@ const BadCase kBadCases[] = {
     {"BadBondTx", GCS "    bond: v\nbonds:\n  - {name: v, tx: all}\n",
      "t.yaml:8:19: bond 'v': invalid tx 'all' (allowed: broadcast, active)"},
     {"UnknownBondKey", GCS "    bond: v\nbonds:\n  - {name: v, mode: active}\n",
-     "t.yaml:8:15: bond 'v': unknown key 'mode'"},
+     "t.yaml:8:15: bond 'v': unknown key 'mode' (it takes: failback_after, failback_loss, "
+     "failover_loss, name, renumber, resend, signing, tx)"},
     {"BondMissingName", GCS "bonds:\n  - tx: active\n",
      "t.yaml:7:5: bond #1: missing required key 'name'"},
 
@@ -584,7 +686,8 @@ const BadCase kBadCases[] = {
     {"IdentityCompidTooBig", GCS "identity: {compid: 256}\n",
      "t.yaml:6:20: identity: 'compid': '256' is not a MAVLink id (1..255)"},
     {"IdentityUnknownKey", GCS "identity: {sysid: 1, hartbeat: 1s}\n",
-     "t.yaml:6:22: identity: unknown key 'hartbeat'"},
+     "t.yaml:6:22: identity: unknown key 'hartbeat' (did you mean 'heartbeat'? it takes: compid, "
+     "heartbeat, sysid)"},
     {"LinkEventsNotMap", GCS "link_events: yes\n",
      "t.yaml:6:14: link_events: must be a map of keys, not a scalar"},
     {"LinkEventsZeroSilence", GCS "link_events:\n  silent_after: 0s\n",
@@ -632,7 +735,8 @@ const BadCase kBadCases[] = {
     {"TxRateOnTlog", "endpoints:\n  - {name: log, type: tlog, directory: /l, tx_rate: 5kB/s}\n",
      "t.yaml:2:44: endpoint 'log': key 'tx_rate' does not apply to a tlog endpoint"},
     {"TxClassesUnknownKey", GCS "tx_classes: {controll: [HEARTBEAT]}\n",
-     "t.yaml:6:14: tx_classes: unknown key 'controll'"},
+     "t.yaml:6:14: tx_classes: unknown key 'controll' (did you mean 'control'? it takes: bulk, "
+     "caps, control)"},
     {"TxClassesUnknownMessage", GCS "tx_classes: {bulk: [FTP]}\n",
      "t.yaml:6:21: tx_classes: 'bulk': unknown message 'FTP'"},
     {"TxClassesBoth", GCS "tx_classes: {bulk: [HEARTBEAT]}\n",
@@ -661,12 +765,12 @@ identity: {sysid: 7, compid: 68, heartbeat: 500ms}
 link_events: {silent_after: 1.5s, min_interval: 3s}
 )");
     ASSERT_TRUE(config.has_value()) << config.error().message;
-    EXPECT_TRUE(config->bonds[0].renumber);
+    EXPECT_EQ(std::optional<bool>(true), config->bonds[0].renumber);
     EXPECT_EQ(7, config->identity.sysid);
     EXPECT_EQ(68, config->identity.compid);
     EXPECT_EQ(milliseconds(500), config->identity.heartbeat);
     EXPECT_TRUE(config->link_events.enabled);
-    EXPECT_TRUE(config->link_events.statustext) << "on by default once the section is there";
+    EXPECT_FALSE(config->link_events.statustext.has_value()) << "derived once the section is there";
     EXPECT_EQ(milliseconds(1500), config->link_events.silent_after);
     EXPECT_EQ(seconds(3), config->link_events.min_interval);
 }
@@ -740,6 +844,8 @@ TEST(ConfigParse, WithoutTheSectionsMavbondSaysNothingOfItsOwn) {
     auto config = parse(GCS);
     ASSERT_TRUE(config.has_value()) << config.error().message;
     EXPECT_FALSE(config->link_events.enabled);
+    EXPECT_FALSE(config->bonds.empty() ? false : config->bonds[0].renumber.has_value())
+        << "absent: derived by the filter chain";
     EXPECT_EQ(Duration::zero(), config->identity.heartbeat);
     EXPECT_EQ(1, config->identity.sysid);
     EXPECT_EQ(191, config->identity.compid);
@@ -833,7 +939,8 @@ TEST(MetricsConfig, ErrorsNameTheirPlace) {
     EXPECT_EQ("t.yaml:2:11: metrics: 'listen': host 'gcs.local' is not an IPv4 address (a.b.c.d) "
               "or 'localhost'",
               error_of("  listen: gcs.local:9273\n"));
-    EXPECT_EQ("t.yaml:3:3: metrics: unknown key 'path'", error_of("  listen: 1\n  path: /m\n"));
+    EXPECT_EQ("t.yaml:3:3: metrics: unknown key 'path' (it takes: listen, max_connections, timeout)",
+              error_of("  listen: 1\n  path: /m\n"));
     EXPECT_EQ("t.yaml:2:3: metrics: missing required key 'listen' (e.g. 127.0.0.1:9273)",
               error_of("  timeout: 1s\n"));
     EXPECT_EQ("t.yaml:3:20: metrics: 'max_connections': '0' is not in 1..1024",
@@ -914,6 +1021,82 @@ TEST(HostPort, RefusesWhatNoResolverTakes) {
                          "a.net:x",   "a.net:-1",     "[a.net]:1"};
     for (const char* text : bad)
         EXPECT_NE("", parse_host_port(text).error) << "'" << text << "'";
+}
+
+// --- a bond's signing -----------------------------------------------------------------------
+
+class BondSigning : public testing::Test {
+protected:
+    Result<Config> parse_signed(const std::string& bond_signing, const std::string& extra = "") {
+        std::string text =
+            "endpoints:\n"
+            "  - {name: radio, type: udp, mode: client, address: 127.0.0.1:1, bond: vehicle}\n"
+            "  - {name: lte, type: udp, mode: client, address: 127.0.0.1:2, bond: vehicle" +
+            extra + "}\n"
+            "  - {name: gcs, type: udp, mode: server, address: 127.0.0.1:3}\n"
+            "bonds:\n"
+            "  - {name: vehicle, signing: " + bond_signing + "}\n";
+        return parse_config(text, "t.yaml", endpoint_schemas());
+    }
+    TempKey key_;
+};
+
+TEST_F(BondSigning, SignsEveryMemberByDefaultAndTheLinksGivenOtherwise) {
+    auto all = parse_signed("{key_file: " + key_.path() + "}");
+    ASSERT_TRUE(all.has_value()) << all.error().message;
+    EXPECT_EQ((std::vector<std::string>{"radio", "lte"}), all->bonds[0].signing.links);
+    for (size_t i = 0; i < 2; i++) {
+        const SigningConfig& s = all->endpoints[i].signing;
+        EXPECT_TRUE(s.enabled && s.require && s.by_bond) << all->endpoints[i].name;
+        EXPECT_EQ(all->bonds[0].signing.key, s.key);
+    }
+    EXPECT_FALSE(all->endpoints[2].signing.enabled) << "not a member";
+    auto lte = parse_signed("{key_file: " + key_.path() + ", links: [lte]}");
+    ASSERT_TRUE(lte.has_value()) << lte.error().message;
+    EXPECT_EQ(std::vector<std::string>{"lte"}, lte->bonds[0].signing.links);
+    EXPECT_FALSE(lte->endpoints[0].signing.enabled);
+    EXPECT_TRUE(lte->endpoints[1].signing.by_bond);
+    EXPECT_FALSE(same_settings(all->endpoints[0], lte->endpoints[0]))
+        << "a link signed or not is another declaration: a reload restarts it";
+}
+
+TEST_F(BondSigning, MistakesNameTheirPlace) {
+    const std::string k = key_.path();
+    struct Case {
+        std::string signing, extra, error;
+    };
+    const Case cases[] = {
+        {"{key_file: " + k + ", links: [gcs]}", "",
+         "t.yaml:6:" + std::to_string(51 + k.size()) + ": bond 'vehicle': 'signing': 'links': "
+         "'gcs' is not a member of the bond "
+         "(a member has 'bond: vehicle')"},
+        {"{key_file: " + k + ", links: [lte, lte]}", "",
+         "t.yaml:6:" + std::to_string(56 + k.size()) + ": bond 'vehicle': 'signing': 'links': 'lte' is "
+         "listed twice"},
+        {"{key_file: " + k + ", links: []}", "",
+         "t.yaml:6:" + std::to_string(50 + k.size()) + ": bond 'vehicle': 'signing': 'links' "
+         "must name at least one member (leave it out to sign every member)"},
+        {"{links: [lte]}", "", "t.yaml:6:30: bond 'vehicle': 'signing': missing required key "
+                               "'key_file'"},
+        {"{key_file: " + k + ", require: false}", "",
+         "t.yaml:6:" + std::to_string(43 + k.size()) + ": bond 'vehicle': 'signing': unknown "
+         "key 'require' (it takes: key_file, links)"},
+        {"on", "", "t.yaml:6:30: bond 'vehicle': 'signing': must be a map (key_file, links), "
+                   "not a scalar"},
+        {"{key_file: " + k + "}", ", signing: {key_file: " + k + "}",
+         "t.yaml:3:79: endpoint 'lte': 'signing' on a bond member: sign the bond instead "
+         "(bonds: - {name: vehicle, signing: {key_file: ...}}), which signs what it sends on "
+         "its links and verifies what they bring"},
+        {"{key_file: " + k + ".missing}", "",
+         "t.yaml:6:41: bond 'vehicle': 'signing': key file " + k + ".missing: cannot open: No "
+         "such file or directory (make one with: mavbondctl keygen " + k + ".missing; then copy "
+         "the same file to the other side)"},
+    };
+    for (const Case& c : cases) {
+        auto config = parse_signed(c.signing, c.extra);
+        ASSERT_FALSE(config.has_value()) << c.signing;
+        EXPECT_EQ(c.error, config.error().message) << c.signing;
+    }
 }
 
 }  // namespace

@@ -4,10 +4,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
+#include <cstring>
 #include <vector>
 
 #include "mavlink/frame_writer.h"
+#include "routing/standby.h"
 
 namespace mavbond {
 namespace {
@@ -125,7 +128,7 @@ TEST_F(EndpointTest, AnUnsignedFrameNeverReachesRoutingWhenSigningIsRequired) {
     receive(e, {datagram(kHeartbeat)});
     EXPECT_TRUE(sink_.handed.empty());
     EXPECT_EQ(1u, e.counters().sig_unsigned);
-    EXPECT_NE(TimePoint{}, e.counters().last_rx) << "the link was heard all the same";
+    EXPECT_EQ(TimePoint{}, e.counters().last_rx) << "a refused frame is no sign of life";
 }
 
 TEST_F(EndpointTest, AFullBatchGoesToTheSinkAndTheReadGoesOn) {
@@ -186,6 +189,45 @@ TEST_F(EndpointTest, ABudgetedLinkSendsWhatWaitsOnItsOwnTimer) {
         bytes += d.size() + 28;
     EXPECT_EQ(bytes, t.bytes) << "each with its IP and UDP headers";
     EXPECT_EQ(1u, e.counters().tx_class[0].frames);
+}
+
+// The operator stage: a starved radio budget held the air side's standby reports (telemetry
+// to it, one sample slot for all of mavbond's NAMED_VALUE_INTs) for five seconds while they went
+// on LTE, and the ground took the radio for silent. They go at once, paid for like a marker.
+TEST_F(EndpointTest, StandbyReportsGoAtOnceWhateverTheBudgetHolds) {
+    EndpointConfig c = config("radio");
+    c.tx_budget.bytes_per_s = 1000;
+    c.tx_budget.classes.control = {kHeartbeat};
+    RecordingEndpoint e(c, *loop_);
+    ParserCounters counters;
+    std::vector<std::array<uint8_t, kMaxFrameLen>> bufs(12);
+    std::vector<Frame> frames(12);
+    for (uint8_t i = 0; i < 10; i++) {  // telemetry enough to hold the budget for a while
+        std::vector<uint8_t> payload(28, i);
+        size_t n = write_frame_v2(bufs[i], FrameSource{static_cast<uint8_t>(i + 1), 1, i},
+                                  kAttitude, payload);
+        ASSERT_TRUE(DatagramParser(std::span<const uint8_t>(bufs[i].data(), n),
+                                   UnknownIdPolicy::Forward, counters).next(frames[i]));
+        e.send(frames[i]);
+    }
+    e.flush();
+    const size_t before = e.written.size();
+    ASSERT_LT(before, 10u) << "the budget holds some";
+    for (uint8_t k = 0; k < 2; k++) {  // a report of the radio, then the resend announcement
+        std::array<uint8_t, 18> payload{};
+        std::memcpy(payload.data() + 8, k == 0 ? "mbl:radio" : "mbp:resend", k == 0 ? 9 : 10);
+        size_t n = write_frame_v2(bufs[10 + k], FrameSource{1, 191, k}, Standby::kMsgNamedValueInt,
+                                  payload);
+        ASSERT_TRUE(DatagramParser(std::span<const uint8_t>(bufs[10 + k].data(), n),
+                                   UnknownIdPolicy::Forward, counters).next(frames[10 + k]));
+        ASSERT_TRUE(Standby::is_report(frames[10 + k]));
+        e.send(frames[10 + k]);
+        e.flush();
+        ASSERT_EQ(before + k + 1, e.written.size());
+        EXPECT_TRUE(std::equal(frames[10 + k].bytes.begin(), frames[10 + k].bytes.end(),
+                               e.written.back().begin(), e.written.back().end()));
+    }
+    EXPECT_EQ(0u, e.counters().tx_class[1].thinned);
 }
 
 }  // namespace

@@ -189,6 +189,18 @@ TEST(BondReportTest, ALiveMemberWithoutARadioCountsAsFree) {
     EXPECT_EQ(10, bond_report(votes)->txbuf);
 }
 
+TEST(BondReportTest, AMeteredMemberInStandbyIsNoRoom) {
+    // LTE in standby carries control only: the autopilot must slow to what the radio carries,
+    // and may speed up once LTE is active.
+    RadioVote lte;
+    lte.alive = true;
+    lte.standby = true;
+    RadioVote votes[] = {radio(10, 100, 2), lte};
+    EXPECT_EQ(10, bond_report(votes)->txbuf);
+    votes[1].standby = false;
+    EXPECT_EQ(100, bond_report(votes)->txbuf);
+}
+
 TEST(BondReportTest, NobodyToAskMeansNoReport) {
     RadioVote silent;
     RadioVote votes[] = {radio(50, 100, 0, false), silent};
@@ -205,6 +217,45 @@ TEST(BondReportTest, NobodyToAskMeansNoReport) {
 TEST(BondReportTest, ErrorCountsSaturate) {
     RadioVote votes[] = {radio(50, 100, 60000), radio(50, 100, 60000)};
     EXPECT_EQ(65535, bond_report(votes)->rxerrors);
+}
+
+
+TEST(RadioFlowTest, AnEmptyBufferRaisesNoRateThatHeldNothingBack) {
+    // The buffer of a radio given less than its budget lets stays empty, whatever the radio
+    // could carry: that says nothing of a higher rate.
+    RadioFlow flow(5000);
+    flow.report(txbuf(10), t0);
+    ASSERT_EQ(2500u, flow.rate());
+    for (int i = 1; i < 5; i++)
+        EXPECT_EQ(2500u, flow.report(txbuf(100), t0 + seconds(i), false));
+    EXPECT_EQ(3000u, flow.report(txbuf(100), t0 + seconds(5), true));
+}
+
+TEST(BudgetRoomTest, LostFramesSlowTheAutopilotAndANearlyFullLineHoldsIt) {
+    // 1 s at 3000 B/s.
+    EXPECT_EQ(10, budget_room(100, 5000, 11, 3000, 1.0)) << "more than a tenth thinned";
+    EXPECT_EQ(40, budget_room(100, 3100, 3, 3000, 1.0));
+    EXPECT_EQ(70, budget_room(100, 2600, 0, 3000, 1.0)) << "87 %: one step up would overflow";
+    EXPECT_EQ(92, budget_room(100, 2200, 0, 3000, 1.0));
+    EXPECT_EQ(100, budget_room(100, 1000, 0, 3000, 1.0));
+    EXPECT_EQ(100, budget_room(0, 0, 0, 3000, 0.0)) << "nothing known yet";
+}
+
+TEST(BondReportTest, AFreeRadioBehindAFullBudgetIsNoRoom) {
+    // mavbond keeps the radio's buffer from filling, so the radio says it is free while the
+    // budget thins what the autopilot sends: the budget's word counts.
+    RadioVote sik = radio(100, 150);
+    sik.room = 40;
+    RadioVote lte;
+    lte.alive = true;
+    lte.standby = true;
+    RadioVote votes[] = {sik, lte};
+    EXPECT_EQ(40, bond_report(votes)->txbuf);
+    votes[0].room = 100;
+    EXPECT_EQ(100, bond_report(votes)->txbuf);
+    votes[1].standby = false;  // LTE carries the stream: room, whatever the radio's budget
+    votes[0].room = 10;
+    EXPECT_EQ(100, bond_report(votes)->txbuf);
 }
 
 }  // namespace

@@ -98,7 +98,7 @@ public:
 
 private:
     TimePoint release(TimePoint at) {
-        return budget.release(at, [&](std::span<const uint8_t> b) { record(at, b); });
+        return budget.release(at, [&](std::span<uint8_t> b, uint64_t) { record(at, b); });
     }
     void record(TimePoint at, std::span<const uint8_t> b) {
         uint32_t msgid = b[7] | b[8] << 8 | b[9] << 16;
@@ -288,7 +288,7 @@ TEST(TxBudgetTest, ALinkThatStopsHandsOverEverythingHeld) {
     ASSERT_TRUE(line.budget.holding());
     size_t before = line.out.size();
     std::vector<uint16_t> ftp;
-    line.budget.drain(t0, [&](std::span<const uint8_t> b) {
+    line.budget.drain(t0, [&](std::span<uint8_t> b, uint64_t) {
         if (static_cast<uint32_t>(b[7] | b[8] << 8) == id("FILE_TRANSFER_PROTOCOL"))
             ftp.push_back(static_cast<uint16_t>(b[10] | b[11] << 8));
         before++;
@@ -360,6 +360,73 @@ TEST(TxBudgetTest, ARateSetMidStreamHoldsFromThenOn) {
     EXPECT_EQ(static_cast<uint64_t>(15 * fps), k.frames + k.thinned);
     EXPECT_EQ(0u, k.dropped);
     EXPECT_FALSE(line.budget.holding());
+}
+
+
+TEST(TxBudgetTest, ABurstOfControlWaitsInOrderOnceTheLineIsAQuarterSecondBehind) {
+    // A parameter list: 400 PARAM_VALUEs (they are control) at once into a 3240 B/s radio.
+    // What a radio's buffer would lose beyond the line's quarter second waits in mavbond, in
+    // order, ahead of telemetry, and none is lost: it drains at the rate.
+    TxClassesConfig c = classes();
+    c.control.push_back(id("PARAM_VALUE"));
+    std::sort(c.control.begin(), c.control.end());
+    const uint64_t rate = 3240;
+    Line line(rate, c, 65536);
+    for (int i = 0; i < 400; i++)
+        line.offer(make(id("PARAM_VALUE"), static_cast<uint16_t>(i), 25), t0);
+    line.offer(make(id("ATTITUDE"), 1000), t0);
+    const double ahead = rate * 0.25;
+    double at_once = 0;
+    for (const Out& o : line.out)
+        at_once += static_cast<double>(o.len);
+    EXPECT_LE(at_once, ahead + kMaxFrameLen + kMaxFrameLen) << "a quarter second of the rate, and the bucket";
+    EXPECT_TRUE(line.budget.holding());
+    line.run_until(t0 + seconds(2));
+    // Two seconds drain a quarter second plus two seconds of the rate: the rest still waits.
+    ASSERT_FALSE(line.out.empty());
+    for (size_t i = 1; i < line.out.size(); i++) {
+        ASSERT_EQ(id("PARAM_VALUE"), line.out[i].msgid) << "control first, telemetry after it";
+        EXPECT_EQ(line.out[i - 1].tag + 1, line.out[i].tag) << "in order, none lost";
+    }
+    const auto& k = line.budget.counters(TxClass::Control);
+    EXPECT_EQ(0u, k.dropped);
+    EXPECT_GT(k.waited, 0u);
+}
+
+TEST(TxBudgetTest, ControlThatWaitedTwoSecondsIsDroppedAsTooLate) {
+    // A burst far beyond what the line carries in kControlMaxWait: what could not go within
+    // it is dropped (counted), the rest went in order; nothing waits past it.
+    TxClassesConfig c = classes();
+    c.control.push_back(id("PARAM_VALUE"));
+    std::sort(c.control.begin(), c.control.end());
+    Line line(1000, c, 65536);
+    for (int i = 0; i < 500; i++)
+        line.offer(make(id("PARAM_VALUE"), static_cast<uint16_t>(i), 25), t0);
+    line.run_until(t0 + seconds(10));
+    line.offer(make(id("HEARTBEAT"), 777, 9), t0 + seconds(10));  // releases and expires
+    const auto& k = line.budget.counters(TxClass::Control);
+    EXPECT_EQ(501u, k.frames + k.dropped);
+    EXPECT_GT(k.dropped, 0u);
+    for (const Out& o : line.out)
+        EXPECT_LE(o.at - t0, TxBudget::kControlMaxWait + seconds(8)) << "none later than it could be of use";
+    for (size_t i = 1; i + 1 < line.out.size(); i++)
+        EXPECT_LT(line.out[i - 1].tag, line.out[i].tag);
+    EXPECT_EQ(id("HEARTBEAT"), line.out.back().msgid);
+    EXPECT_EQ(t0 + seconds(10), line.out.back().at) << "the line is free again: at once";
+}
+
+TEST(TxBudgetTest, ItsLoadSaysWhatWasOfferedAndWhatWasLost) {
+    Line line(1000, classes());
+    for (int i = 0; i < 100; i++)  // 40-byte samples at 100/s: four times the rate
+        line.offer(make(id("ATTITUDE"), static_cast<uint16_t>(i)), t0 + ms(10 * i));
+    line.run_until(t0 + seconds(2));
+    const TxBudget::Load& l = line.budget.load();
+    EXPECT_EQ(100u, l.offered_frames);
+    EXPECT_EQ(100u * line.out.front().len, l.offered_bytes);
+    const auto& k = line.budget.counters(TxClass::Telemetry);
+    EXPECT_EQ(k.thinned, l.lost);
+    EXPECT_EQ(k.waited, l.waited);
+    EXPECT_GT(l.lost, 50u);
 }
 
 }  // namespace

@@ -5,6 +5,8 @@
 #include <sys/uio.h>
 
 #include <algorithm>
+#include <cstring>
+#include <span>
 #include <cerrno>
 #include <numeric>
 #include <set>
@@ -199,6 +201,151 @@ TEST(TxQueue, HardDatagramErrorDropsOnlyTheFrameItHit) {
     EXPECT_EQ(1u, r.frames_sent);
     EXPECT_EQ(ECONNREFUSED, r.error);
     EXPECT_TRUE(q.empty());
+}
+
+// --- count markers ---------------------------------------------------------------------------
+
+// A marker in the numbered-frame format: index 0xFFFF, then the count it was given (8 bytes).
+constexpr size_t kMarkerLen = 12;
+size_t write_test_marker(void* ctx, std::span<uint8_t> out, uint64_t before) {
+    ++*static_cast<int*>(ctx);  // how often it was written (it is rewritten before each write)
+    std::fill(out.begin(), out.begin() + kMarkerLen, 0);
+    out[0] = out[1] = 0xFF;
+    out[2] = kMarkerLen;
+    std::memcpy(out.data() + 3, &before, 8);
+    out[11] = 0xAB;
+    return kMarkerLen;
+}
+
+// Reads numbered frames and markers from a stream or datagrams: for every marker, the frames
+// that came before it and the count it carried.
+struct MarkerCheck {
+    std::vector<uint8_t> bytes;
+    uint64_t frames = 0;  // every frame so far, markers included
+    std::vector<std::pair<uint64_t, uint64_t>> markers;  // (carried, frames before it)
+    void take(const uint8_t* p, size_t n) {
+        bytes.insert(bytes.end(), p, p + n);
+        size_t pos = 0;
+        while (pos + 3 <= bytes.size() && pos + bytes[pos + 2] <= bytes.size()) {
+            size_t len = bytes[pos + 2];
+            if (bytes[pos] == 0xFF && bytes[pos + 1] == 0xFF && len == kMarkerLen) {
+                uint64_t carried;
+                std::memcpy(&carried, bytes.data() + pos + 3, 8);
+                markers.emplace_back(carried, frames);
+            }
+            frames++;
+            pos += len;
+        }
+        bytes.erase(bytes.begin(), bytes.begin() + static_cast<ptrdiff_t>(pos));
+    }
+};
+
+TEST(TxQueue, StreamMarkersCountExactlyTheFramesWrittenBeforeThem) {
+    // A line that takes a few bytes at a time, cutting frames and markers anywhere, with a
+    // queue that overflows (frames dropped are never written, so never counted).
+    struct Line {
+        size_t budget = 0;
+        MarkerCheck check;
+    } line;
+    auto writer = [](void* ctx, const iovec* iov, size_t count) -> ssize_t {
+        auto& l = *static_cast<Line*>(ctx);
+        size_t taken = 0;
+        for (size_t i = 0; i < count && taken < l.budget; i++) {
+            size_t n = std::min(iov[i].iov_len, l.budget - taken);
+            l.check.take(static_cast<const uint8_t*>(iov[i].iov_base), n);
+            taken += n;
+        }
+        l.budget = 0;
+        return taken == 0 ? -EAGAIN : static_cast<ssize_t>(taken);
+    };
+    TxQueue q(TxQueue::Mode::Stream, 1024);
+    std::vector<std::vector<uint8_t>> frames;
+    for (uint16_t i = 0; i < 4000; i++)
+        frames.push_back(numbered_frame(i, 20 + i % 90));
+    int stamped = 0;
+    uint64_t sent = 0, dropped = 0;
+    for (size_t i = 0; i < frames.size(); i++) {
+        ASSERT_TRUE(q.lend(frames[i]));
+        if (i % 37 == 0)
+            q.put_marker(write_test_marker, &stamped);
+        if (i % 5 == 4) {
+            line.budget = 7 + (i * 13) % 150;  // often less than what waits: cuts and a backlog
+            auto r = q.write_stream(writer, &line);
+            sent += r.frames_sent;
+            dropped += r.frames_dropped;
+        }
+    }
+    for (int round = 0; round < 10000 && !q.empty(); round++) {
+        line.budget = 64;
+        auto r = q.write_stream(writer, &line);
+        sent += r.frames_sent;
+        dropped += r.frames_dropped;
+    }
+    ASSERT_TRUE(q.empty());
+    EXPECT_TRUE(line.check.bytes.empty()) << "half a frame left on the stream";
+    EXPECT_GT(dropped, 100u) << "the test did not overflow the queue";
+    ASSERT_GT(line.check.markers.size(), 50u);
+    EXPECT_GT(static_cast<size_t>(stamped), line.check.markers.size()) << "never rewritten";
+    for (const auto& [carried, before] : line.check.markers)
+        ASSERT_EQ(before, carried);
+    EXPECT_EQ(line.check.frames, q.frames_written());
+    EXPECT_EQ(sent, q.frames_written());
+    EXPECT_EQ(frames.size() + line.check.markers.size(), sent + dropped);
+}
+
+TEST(TxQueue, DatagramMarkerGoesAheadOfTheBacklogWithTheCountBeforeIt) {
+    struct Kernel {
+        size_t room = 0;  // datagrams it takes before EAGAIN
+        MarkerCheck check;
+    } kernel;
+    auto writer = [](void* ctx, const iovec* frames, size_t count) -> int {
+        auto& k = *static_cast<Kernel*>(ctx);
+        size_t n = std::min(count, k.room);
+        for (size_t i = 0; i < n; i++)
+            k.check.take(static_cast<const uint8_t*>(frames[i].iov_base), frames[i].iov_len);
+        k.room -= n;
+        return n == 0 ? -EAGAIN : static_cast<int>(n);
+    };
+    TxQueue q(TxQueue::Mode::Datagram, 1 << 16);
+    std::vector<std::vector<uint8_t>> frames;
+    for (uint16_t i = 0; i < 300; i++)
+        frames.push_back(numbered_frame(i, 30));
+    int stamped = 0;
+    for (size_t i = 0; i < frames.size(); i++) {
+        q.lend(frames[i]);
+        if (i % 20 == 0)
+            q.put_marker(write_test_marker, &stamped);
+        if (i % 10 == 9) {
+            kernel.room = i % 30 == 29 ? 0 : 6;  // a backlog builds, a marker waits on EAGAIN
+            q.write_datagrams(writer, &kernel);
+            EXPECT_EQ(q.has_backlog(), q.marker_waiting() || !q.empty());
+        }
+    }
+    for (int round = 0; round < 1000 && !q.empty(); round++) {
+        kernel.room = 3;
+        q.write_datagrams(writer, &kernel);
+    }
+    ASSERT_TRUE(q.empty());
+    ASSERT_GE(kernel.check.markers.size(), 10u);
+    for (const auto& [carried, before] : kernel.check.markers)
+        ASSERT_EQ(before, carried);
+    EXPECT_EQ(kernel.check.frames, q.frames_written());
+    EXPECT_FALSE(q.put_marker(write_test_marker, &stamped) && q.put_marker(write_test_marker, &stamped))
+        << "a second marker while one waits";
+}
+
+TEST(TxQueue, ARadiosOwnReportIsNotCountedAsWritten) {
+    TxQueue q(TxQueue::Mode::Datagram, 4096);
+    // RADIO_STATUS from a SiK radio (MAVLink 1, system 51, component 68), then any frame.
+    std::vector<uint8_t> report = {0xFE, 9, 0, 51, 68, 109, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    std::vector<uint8_t> other = {0xFE, 9, 0, 1, 1, 109, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    q.lend(report);
+    q.lend(other);
+    int fd_ok = 0;
+    auto r = q.write_datagrams([](void*, const iovec*, size_t count) { return static_cast<int>(count); },
+                               &fd_ok);
+    EXPECT_EQ(2u, r.frames_sent);
+    EXPECT_EQ(1u, q.frames_written());
 }
 
 }  // namespace
