@@ -233,9 +233,11 @@ link_events() {
     local j
     j=$(journal | grep "link event: " || true)
     echo "$j"
-    grep -q "link radio1 up (bond air" <<<"$j" && grep -q "link radio2 lost (bond air" <<<"$j"
+    # The direction is the side's own: this one hears the vehicle (1/1) through the bond.
+    grep -q "link radio1 downlink up (bond air" <<<"$j" &&
+        grep -q "link radio2 downlink lost (bond air" <<<"$j"
 }
-show "the journal: link radio1 up, link radio2 lost" link_events
+show "the journal: link radio1 downlink up, link radio2 downlink lost" link_events
 
 # --- the watchdog: a frozen daemon is restarted ------------------------------------------
 say "SIGSTOP the daemon: the loop stops feeding WatchdogSec, systemd restarts it"
