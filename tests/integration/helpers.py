@@ -170,15 +170,21 @@ def send_lockstep(sock: socket.socket, addr, frames: List[bytes], sink: socket.s
 # --- frames -------------------------------------------------------------------------------
 
 class FrameMaker:
-    """Packs frames with pymavlink for one (sysid, compid), with its own sequence counter."""
+    """Packs frames with pymavlink for one (sysid, compid). pymavlink's pack() does not count:
+    every frame has sequence number 0 (tests that send the same frame twice rely on it) unless
+    `counting`, which numbers them as a MAVLink stack's send() does, one up per frame."""
 
-    def __init__(self, sysid: int, compid: int, v1: bool = False):
+    def __init__(self, sysid: int, compid: int, v1: bool = False, counting: bool = False):
         mod = mav1 if v1 else mav2
         self.mav = mod.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.mod = mod
+        self.counting = counting
 
     def pack(self, msg) -> bytes:
-        return bytes(msg.pack(self.mav))
+        frame = bytes(msg.pack(self.mav))
+        if self.counting:
+            self.mav.seq = (self.mav.seq + 1) % 256
+        return frame
 
     def heartbeat(self, type_=2) -> bytes:
         return self.pack(self.mod.MAVLink_heartbeat_message(type_, 3, 0, 0, 4, 3))

@@ -178,7 +178,7 @@ Port = {out_port}
     gcs, radio_a, radio_b = udp_socket(out_port), udp_socket(), udp_socket()
     try:
         d.start()
-        vm = FrameMaker(1, 1)
+        vm = FrameMaker(1, 1, counting=True)  # an autopilot numbers its frames
         frames = vm.telemetry(30)
         for f in frames:
             radio_a.sendto(f, (HOST, in_a))
@@ -192,7 +192,7 @@ Port = {out_port}
         assert [content(f) for f in got] == [content(f) for f in frames], \
             "every frame routed once: the imported dedup dropped the copies"
         seqs = [tlog.seq(f) for f in got]
-        assert all((b - a) % 256 == 1 for a, b in zip(seqs, seqs[1:])), seqs
+        assert all((b - a) % 256 == 1 for a, b in zip(seqs, seqs[1:])), str(seqs)
     finally:
         gcs.close()
         radio_a.close()

@@ -545,8 +545,22 @@ def test_a_bond_signing_only_lte_delivers_each_frame_once(lab, tmp_path, key_fil
                                        dict(delay="60ms"), links=["lte"])
     gcs, vehicle = stream_through(lab, p, frames)
     n = len(frames)
-    wait_for(lambda: bond_status(tmp_path / "ground.sock")["signing"]["verified"] == n,
-             "LTE's copies verified")
+    index = stream_index(frames)
+
+    def lte_verified():
+        """LTE's markers once it took every frame and the ground verified all it forwarded,
+        its count markers (signed too) included."""
+        c = emu.counters_now()
+        u = c["lte"]["up"]
+        if u["forwarded"] != u["received"]:
+            return None
+        carried = carried_now(emu, tmp_path, c, index)
+        if not carried["lte"].complete(n):
+            return None
+        verified = bond_status(tmp_path / "ground.sock")["signing"]["verified"]
+        return carried["lte"].markers if verified == u["forwarded"] else None
+
+    lte_markers = wait_for(lte_verified, "LTE's copies verified")
     gcs.wait_quiet(0.5)
     got = [f for f in gcs.stop() if tlog.sysid(f) == 1]
     missing, extra = multiset_diff([f for _, f in frames], got)
@@ -557,7 +571,9 @@ def test_a_bond_signing_only_lte_delivers_each_frame_once(lab, tmp_path, key_fil
           f"{sum(extra.values())}); air tx_signed radio {a_radio['tx_signed']}, lte "
           f"{a_lte['tx_signed']}; ground signing {status['bonds'][0]['signing']}")
     assert not missing and not extra
+    # tx_signed counts the frames routed; the count markers are signed as they are written
     assert (a_radio["tx_signed"], a_lte["tx_signed"]) == (0, n)
+    assert len(lte_markers) > 0
     assert status["bonds"][0]["signing"]["links"] == ["lte"]
     assert sum(l.get("duplicates", 0) for l in dedup["links"]) == n, "each second copy dropped"
     assert ground.stop() == 0 and air.stop() == 0
