@@ -197,7 +197,7 @@ Endpoint::Received Endpoint::receive(ReceivedBatch& batch, const Frame& received
     if (how == Received::Refused) {
         // The far side wrote it (or a stranger did): it arrived, whatever it is, and tells
         // nothing (a marker that does not verify included).
-        if (!is_radio_own_report(received.bytes.data()))
+        if (!is_radio_own_report(received))
             account().frame_in();
         return how;
     }
@@ -209,7 +209,7 @@ bool Endpoint::let_in(ReceivedBatch& batch, const Frame& frame, TimePoint arriva
     // Heard: what signing let in (a stranger's forged frames keep no dead link alive). A
     // radio's own report (when the radio is not this link's budget) neither counts nor says
     // the far side is there.
-    const bool radio_own = is_radio_own_report(frame.bytes.data());
+    const bool radio_own = is_radio_own_report(frame);
     if (!radio_own)
         stats_.last_rx = arrival;
     CountMarker marker;

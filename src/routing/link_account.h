@@ -32,6 +32,7 @@
 #include "core/clock.h"
 #include "mavlink/frame.h"
 #include "mavlink/frame_writer.h"
+#include "mavlink/radio_status.h"
 
 namespace mavbond {
 
@@ -67,6 +68,10 @@ size_t count_marker_length(std::string_view link);
 
 /// Whether the bytes of a whole frame are a radio's own RADIO_STATUS (neither side counts it).
 bool is_radio_own_report(const uint8_t* frame);
+/// The same of a parsed frame (its header, not its bytes, is read).
+inline bool is_radio_own_report(const Frame& frame) {
+    return frame.sysid == kSikSysid && frame.compid == kSikCompid && is_radio_status(frame.msgid);
+}
 
 /// The receiving side of one link's account: the frames that came in, against what the far
 /// side's markers say it wrote. Counts only grow; a new session of the sender (its link

@@ -217,7 +217,7 @@ private:
     /// A member heard its far side: any frame but a radio's own report (its radio says it
     /// whether or not the far side is there).
     static void heard(Bond& bond, uint32_t member, const ReceivedFrame& r) {
-        if (!is_radio_own_report(r.frame.bytes.data()))
+        if (!is_radio_own_report(r.frame))
             bond.heard(member, r.arrival);
     }
     /// Whether the route target `to` belongs to (itself, or its whole bond) knows the target.
