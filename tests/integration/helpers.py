@@ -573,3 +573,12 @@ class PtyReader(threading.Thread):
             except (BlockingIOError, OSError):
                 pass
             time.sleep(0.001)
+
+
+def known_defect(issue: int, what: str):
+    """A test of something the product does not do right yet (issue `issue` is open on it): it
+    runs and prints what it found, and is reported as an expected failure, with `what` it found
+    when marked, so the rest of scripts/test can land. Every one is listed in the closing note
+    of its issue; take the mark off with the fix."""
+    import pytest
+    return pytest.mark.xfail(reason=f"known defect, issue {issue} open: {what}", strict=False)
