@@ -1323,8 +1323,8 @@ std::string endpoint_options_manual(EndpointSchemas types) {
     static const char* const kKinds[] = {"true or false", "a positive integer",
                                          "a duration such as 250ms or 2s",
                                          "a size in bytes such as 16KiB or 64MiB",
-                                         "host:port, the host an IPv4 address, an IPv6 address in "
-                                         "brackets ([::1]:14550) or a host name",
+                                         ("host:port, the host an IPv4 address, an IPv6 address in "
+                                          "brackets ([::1]:14550) or a host name"),
                                          "a text"};
     std::string out;
     for (const EndpointSchema* t : types) {

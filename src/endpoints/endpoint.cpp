@@ -137,11 +137,11 @@ uint8_t Endpoint::take_budget_room(TimePoint now) {
         return 100;
     const TxBudget::Load load = budget_->load();
     const TxBudget::Load d = load - room_seen_;
-    const double seconds = room_at_ == TimePoint{} ? 0.0
-                                                   : std::chrono::duration<double>(now - room_at_).count();
+    const double span_s = room_at_ == TimePoint{} ? 0.0
+                                                  : std::chrono::duration<double>(now - room_at_).count();
     room_seen_ = load;
     room_at_ = now;
-    return budget_room(d.offered_frames, d.offered_bytes, d.lost, budget_->bytes_per_s(), seconds);
+    return budget_room(d.offered_frames, d.offered_bytes, d.lost, budget_->bytes_per_s(), span_s);
 }
 
 void Endpoint::take_radio_report(const Frame& frame, TimePoint arrival) {

@@ -61,12 +61,12 @@ uint64_t RadioFlow::check(TimePoint now) {
 }
 
 uint8_t budget_room(uint64_t offered_frames, uint64_t offered_bytes, uint64_t lost, uint64_t rate,
-                    double seconds) {
+                    double span_s) {
     if (lost != 0)
         return lost * 10 > offered_frames ? 10 : 40;
-    if (seconds <= 0)
+    if (span_s <= 0)
         return 100;  // nothing measured yet
-    const double carried = static_cast<double>(rate) * seconds;
+    const double carried = static_cast<double>(rate) * span_s;
     const auto offered = static_cast<double>(offered_bytes);
     if (offered >= 0.85 * carried)
         return 70;

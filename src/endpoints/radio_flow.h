@@ -93,7 +93,7 @@ struct RadioVote {
 
 /// What a member's budget says of the room for the autopilot's stream, as a RADIO_STATUS
 /// txbuf, from what the budget was offered and did over the last report's interval (`load`
-/// its TxBudget::Load there, `rate` bytes a second, `seconds`): ArduPilot slows its streams
+/// its TxBudget::Load there, `rate` bytes a second, `span_s` its length in seconds): ArduPilot slows its streams
 /// below 50 and speeds them up above 90 (a step of 20 to 60 ms per stream per report), so
 ///   frames lost (thinned, dropped)  more than a tenth 10, else 40: slow down
 ///   offered 85 % of the rate or more                    70: hold (one step up would overflow)
@@ -101,7 +101,7 @@ struct RadioVote {
 ///   less                                               100
 /// Every step keeps clear of the next, so the autopilot settles below the rate, not around it.
 uint8_t budget_room(uint64_t offered_frames, uint64_t offered_bytes, uint64_t lost, uint64_t rate,
-                    double seconds);
+                    double span_s);
 
 /// The report for a whole bond, or nullopt when no member can say. `txbuf` is the best
 /// member's: a redundant bond carries the stream while one member can, so the autopilot slows
