@@ -260,6 +260,11 @@ def test_what_a_bond_member_thins_takes_no_number(start_daemon, pty_pair, tmp_pa
         r.start()
     fm = FrameMaker(1, 1)
     tele = telemetry_maker(fm)
+
+    def of_vehicle(reader):
+        return [f for f in split_stream(bytes(reader.data))
+                if (f[5], f[6]) == (1, 1) and f[7] | f[8] << 8 | f[9] << 16 != 252]
+
     n, skip_at = int(FPS * 3), int(FPS * 1.5)
     src = udp_socket()
     t_start = time.monotonic()
@@ -271,17 +276,28 @@ def test_what_a_bond_member_thins_takes_no_number(start_daemon, pty_pair, tmp_pa
             # skipping 3 once (its own gap).
             fm.mav.seq = (i + (3 if i >= skip_at else 0)) % 256
             src.sendto(tele(i), (HOST, ap_port))
-        while any(time.monotonic() - r.last_byte < 1.5 for r in readers):
+        # The end by the daemon's counters, not a quiet spell: each budget settled every frame
+        # offered, the plain line's reader has every byte written, and the bond member's every
+        # frame it numbered (its count markers and reports are not the source's).
+        deadline = time.monotonic() + 30
+        while True:
+            doc = status_document(sock_path)
+            ends = {e["name"]: e for e in doc["endpoints"]}
+            settled = all(sum(ends[k]["tx_budget"]["telemetry"][c] for c in
+                              ("frames", "thinned", "dropped")) == n for k in ("radio", "plain"))
+            plain_e = ends["plain"]
+            numbered = next(b for b in doc["bonds"] if b["name"] == "vehicle")["numbering"]
+            if (settled and plain_e["tx_frames"] == plain_e["tx_budget"]["telemetry"]["frames"]
+                    and len(readers[1].data) == plain_e["tx_bytes"]
+                    and len(of_vehicle(readers[0])) == numbered["numbered"]):
+                break
+            assert time.monotonic() < deadline, "the budgets' frames did not all reach the lines"
             time.sleep(0.1)
     finally:
         for r in readers:
             r.stop_flag.set()
             r.join(2)
         src.close()
-
-    def of_vehicle(reader):
-        return [f for f in split_stream(bytes(reader.data))
-                if (f[5], f[6]) == (1, 1) and f[7] | f[8] << 8 | f[9] << 16 != 252]
 
     def steps(frames):
         seqs = [f[4] for f in frames]
