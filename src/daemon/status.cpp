@@ -203,7 +203,8 @@ std::string status_json(const Status& s) {
                "\",\"switches\":" + std::to_string(b.switches);
         out += ",\"numbering\":{\"numbered\":" + std::to_string(b.numbering.numbered) +
                ",\"expired\":" + std::to_string(b.numbering.expired) +
-               ",\"untracked\":" + std::to_string(b.numbering.untracked) + "}";
+               ",\"untracked\":" + std::to_string(b.numbering.untracked) +
+               ",\"superseded\":" + std::to_string(b.numbering.superseded) + "}";
         if (!b.renumber.empty()) {
             out += ",\"renumber\":{";
             for (const auto& [name, value] : b.renumber)
@@ -356,6 +357,9 @@ MetricSet status_metrics(const Status& s) {
         set.counter("mavbond_bond_numbering_untracked",
                     "Frames of sources beyond the bond's numbering table: sent as they came.",
                     b.numbering.untracked, {{"bond", b.name}});
+        set.counter("mavbond_bond_numbering_superseded",
+                    "Held copies not sent: another link carried their frame so long before that "
+                    "the far side could not place them.", b.numbering.superseded, {{"bond", b.name}});
         if (b.reports_radio_status) {
             set.counter("mavbond_bond_radio_status_sent",
                         "RADIO_STATUS frames mavbond sent the local side for the bond.",

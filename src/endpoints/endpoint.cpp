@@ -298,6 +298,8 @@ void Endpoint::lend_held(std::span<uint8_t> frame, uint64_t ticket) {
         lend_now(frame);
         return;
     }
+    if (numbering_->superseded(ticket))
+        return;  // another link carried it long ago (routing/egress_numbering.h)
     rewrite_seq(frame, numbering_->number(ticket, frame[frame[0] == kMagicV2 ? 5 : 3],
                                           frame[frame[0] == kMagicV2 ? 6 : 4]));
     if (!bond_signing_) {

@@ -58,12 +58,26 @@ uint8_t EgressNumbering::number(uint64_t ticket, uint8_t sysid, uint8_t compid) 
             return 0;
     }
     const auto n = static_cast<uint8_t>(s->next + s->owed);
+    s->given += s->owed + 1;
     s->owed = 0;
     s->next = static_cast<uint8_t>(n + 1);
-    if (t.id == ticket)
+    if (t.id == ticket) {
         t.number = n;
+        t.given_at = s->given;
+    }
     counters_.numbered++;
     return n;
+}
+
+bool EgressNumbering::superseded(uint64_t ticket) {
+    const Ticket& t = tickets_[ticket % kTickets];
+    if (t.id != ticket || t.number < 0)
+        return false;
+    // How far back the far side must step for it from the source's next frame.
+    if (sources_[t.source].given + sources_[t.source].owed - t.given_at < kMaxLag)
+        return false;
+    counters_.superseded++;
+    return true;
 }
 
 }  // namespace mavbond

@@ -16,6 +16,12 @@
 // longer than any budget or resend holds a frame) has expired, and its frame takes a fresh
 // number.
 // Frames signed by their source keep their number (the signature covers it): no ticket.
+//
+// A held copy whose frame's number lies far behind its source's newest is superseded, not
+// sent: another link carried the frame long ago (a radio whose queue lags the LTE by a
+// parameter download), and the far side unwraps each link's sequence byte into positions, so
+// a step back of more than half of 256 would read as a step forward and misplace the link.
+// The copy was a spare: its frame went, on the link that gave it its number.
 #pragma once
 
 #include <cstdint>
@@ -29,11 +35,15 @@ class EgressNumbering {
 public:
     static constexpr size_t kTickets = 8192;
     static constexpr uint32_t kMaxSources = 64;
+    // How far behind its source's newest number a held copy may still go: under half of 256
+    // (a step back the far side reads as one), with room for the link's own later frames.
+    static constexpr uint64_t kMaxLag = 96;
 
     struct Counters {
         uint64_t numbered = 0;   // frames given their number (their first copy went)
         uint64_t expired = 0;    // asked for after their ticket was reused: a fresh number
         uint64_t untracked = 0;  // frames of sources beyond the table: sent as they came
+        uint64_t superseded = 0; // held copies not sent: their number too far behind (above)
     };
 
     EgressNumbering();
@@ -44,6 +54,9 @@ public:
     /// The number the frame of `ticket` (from sysid, compid) goes out with: the one it took
     /// when its first copy went, or, for that first copy, the next of its source.
     uint8_t number(uint64_t ticket, uint8_t sysid, uint8_t compid);
+    /// Whether the held copy of `ticket` is superseded (above): its frame took its number when
+    /// another copy went, more than kMaxLag numbers ago. Counted when true.
+    bool superseded(uint64_t ticket);
 
     const Counters& counters() const { return counters_; }
 
@@ -55,11 +68,13 @@ private:
         uint8_t last_seq = 0;  // the source's own number of the last frame issued
         uint8_t next = 0;      // the next number to give
         uint32_t owed = 0;     // the source's own gaps not yet stepped over
+        uint64_t given = 0;    // numbers passed so far (given or stepped over): no wrap
     };
     struct Ticket {
         uint64_t id = 0;
         uint16_t source = 0;
         int16_t number = -1;  // -1: not given yet
+        uint64_t given_at = 0; // its source's `given` once it took its number
     };
 
     Source* source(uint8_t sysid, uint8_t compid);

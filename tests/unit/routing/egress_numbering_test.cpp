@@ -41,6 +41,33 @@ TEST(EgressNumbering, EveryCopyGoesWithTheNumberOfTheFirst) {
     EXPECT_EQ(2u, n.counters().numbered);
 }
 
+TEST(EgressNumbering, AHeldCopyFarBehindItsSourceIsSupersededNotSent) {
+    // A parameter download: the LTE sends each PARAM_VALUE at once, the radio's copies wait
+    // in its budget while the burst goes on. A copy still near the newest number goes; one so
+    // far behind that the far side would read its step back as a step forward does not.
+    EgressNumbering n;
+    const uint64_t first = n.issue(from(1, 1, 0));
+    EXPECT_EQ(0, n.number(first, 1, 1));
+    EXPECT_FALSE(n.superseded(first)) << "the newest number: its radio copy goes";
+    const uint64_t unnumbered = n.issue(from(1, 1, 1));
+    uint64_t last = 0;
+    for (uint64_t i = 1; i < EgressNumbering::kMaxLag; i++) {
+        last = n.issue(from(1, 1, static_cast<uint8_t>(1 + i)));
+        n.number(last, 1, 1);
+    }
+    EXPECT_FALSE(n.superseded(first)) << "kMaxLag - 1 behind: the far side steps back to it";
+    last = n.issue(from(1, 1, static_cast<uint8_t>(1 + EgressNumbering::kMaxLag)));
+    n.number(last, 1, 1);
+    EXPECT_TRUE(n.superseded(first)) << "kMaxLag behind: a spare the far side cannot place";
+    EXPECT_FALSE(n.superseded(unnumbered)) << "no copy went yet: it takes the next number";
+    EXPECT_FALSE(n.superseded(last));
+    EXPECT_EQ(1u, n.counters().superseded);
+    // 300 numbers on (past a wrap of the sequence byte): still far behind, not 44.
+    for (int i = 0; i < 300; i++)
+        n.number(n.issue(from(1, 1, static_cast<uint8_t>(i))), 1, 1);
+    EXPECT_TRUE(n.superseded(last));
+}
+
 TEST(EgressNumbering, TheSourcesOwnGapsStayGaps) {
     EgressNumbering n;
     // 0, 1, then 5 (2..4 lost before mavbond), then 255 -> 1 across the wrap (0 lost).
