@@ -103,7 +103,7 @@ uint64_t Endpoint::follow_radio(uint64_t ceiling) {
     if (radio_)
         radio_->set_ceiling(ceiling);  // a reload: what the reports learned stays
     else
-        radio_ = std::make_unique<RadioFlow>(ceiling);
+        radio_ = std::make_unique<RadioFlow>(ceiling, loop_.now());
     if (!radio_timer_.active()) {
         radio_timer_ = loop_.schedule(seconds(1), [this] {
             if (radio_ && budget_ && radio_->check(loop_.now()) != budget_->bytes_per_s())

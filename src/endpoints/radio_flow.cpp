@@ -23,7 +23,8 @@ bool is_radio_report(const Frame& frame, RadioStatusSource source) {
            frame.sysid == kSikSysid && frame.compid == kSikCompid;
 }
 
-RadioFlow::RadioFlow(uint64_t ceiling) : ceiling_(ceiling), rate_(ceiling) {}
+RadioFlow::RadioFlow(uint64_t ceiling, TimePoint started)
+    : ceiling_(ceiling), rate_(std::max(ceiling / 2, floor())), last_at_(started) {}
 
 uint64_t RadioFlow::floor() const {
     return std::min(ceiling_, std::max(ceiling_ / kFloorShare, kMinFloor));
@@ -52,9 +53,9 @@ uint64_t RadioFlow::report(const RadioReport& r, TimePoint now, bool rate_was_li
 }
 
 uint64_t RadioFlow::check(TimePoint now) {
-    if (!stale_ && !fresh(now)) {
+    if (!stale_ && now - last_at_ >= kStale) {
         stale_ = true;
-        counters_.stale++;
+        counters_.stale += counters_.reports != 0;  // a radio that never spoke: no report stopped
         rate_ = ceiling_;
     }
     return rate_;

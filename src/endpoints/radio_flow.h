@@ -16,9 +16,13 @@
 //                    while the application sends less than it allows, RFC 7661)
 //       otherwise    it stays
 //     never below a sixteenth of the ceiling (control frames go regardless: tx_budget.h). The
-//     ceiling is the configured tx_rate (a UART's baud without one). Reports that stop for
-//     kStale put the rate back to the ceiling: nothing is known any more, and the line's own
-//     rate is what mavbond knew before the radio spoke.
+//     ceiling is the configured tx_rate (a UART's baud without one). The rate starts at half
+//     the ceiling: a line's rate says nothing of the air behind it (a SiK radio on a 57600-baud
+//     line airs some 3,600 B/s), and a burst at the line's rate (the first parameter download)
+//     overflowed the radio's buffer before its reports could slow it; the reports raise it
+//     from there within seconds where the radio has room. A radio that never reports (kStale
+//     from the start) and reports that stop for kStale put the rate at the ceiling: nothing is
+//     known then, and the line's own rate is what mavbond knows.
 //   - bond_report() makes the report the autopilot gets for a whole bond: the bond is
 //     redundant, so it can carry the stream while its best member can. See its comment. A
 //     member with a budget has a say of its own beside its radio's (budget_room): a radio
@@ -52,15 +56,16 @@ public:
         uint64_t stale = 0;      // times the reports stopped and the rate went back up
     };
 
-    /// `ceiling`: the configured rate, bytes a second.
-    explicit RadioFlow(uint64_t ceiling);
+    /// `ceiling`: the configured rate, bytes a second; `started`: when the link began.
+    RadioFlow(uint64_t ceiling, TimePoint started);
 
     /// A new configured rate (a reload): the rate keeps what the reports made it, within it.
     void set_ceiling(uint64_t ceiling);
     /// Takes a report; `rate_was_limit`: the budget held the stream back since the last one
     /// (thinned samples, a queue waiting). Returns the rate now.
     uint64_t report(const RadioReport& r, TimePoint now, bool rate_was_limit = true);
-    /// Puts the rate back to the ceiling when no report came for kStale; returns the rate now.
+    /// Puts the rate at the ceiling when no report came for kStale (since the last one, or
+    /// since the start); returns the rate now.
     uint64_t check(TimePoint now);
 
     uint64_t rate() const { return rate_; }
@@ -76,8 +81,8 @@ private:
     uint64_t ceiling_;
     uint64_t rate_;
     RadioReport last_;
-    TimePoint last_at_{};
-    bool stale_ = true;  // no report counts now
+    TimePoint last_at_{};  // the last report's arrival (the start, before the first)
+    bool stale_ = false;   // the rate is at the ceiling for want of reports
     Counters counters_;
 };
 

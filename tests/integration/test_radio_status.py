@@ -27,6 +27,8 @@ from helpers import (HOST, known_defect, FrameMaker, PtyReader, free_port, split
 
 SLOW_CEILING = 5760     # 57600 baud, 8N1
 FAST_CEILING = 92160    # 921600 baud
+SLOW_START = SLOW_CEILING // 2   # where a budget that follows its radio starts (radio_flow.h)
+FAST_START = FAST_CEILING // 2
 AIR = [{"name": "air", "tx": "broadcast"}]
 
 
@@ -191,20 +193,21 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
     try:
         ap.streaming.set()
         # The fast radio has room; the slow one is full: each of its reports halves its budget
-        # down to the floor (a sixteenth), the fast one's stays at its line's rate.
+        # down to the floor (a sixteenth), from half its line's rate where both start; the fast
+        # one's stays there (the stream fits: room says nothing of a rate never used).
         first = report_in_step(fast, "fast", sock, 100)
-        assert first["rate"] == FAST_CEILING and first["ceiling"] == FAST_CEILING
+        assert first["rate"] == FAST_START and first["ceiling"] == FAST_CEILING
         rates = []
         for i in range(5):
             rates.append(report_in_step(slow, "slow", sock, 10)["rate"])
             report_in_step(fast, "fast", sock, 100)
-        assert rates == [2880, 1440, 720, 360, 360]
+        assert rates == [1440, 720, 360, 360, 360]
         doc = status_document(sock)
         s = endpoint(doc, "slow")
-        assert s["radio_status"]["floor"] == 360 and s["radio_status"]["decreases"] == 4
+        assert s["radio_status"]["floor"] == 360 and s["radio_status"]["decreases"] == 3
         assert s["radio_status"]["last"]["txbuf"] == 10 and s["radio_status"]["last"]["rssi"] == 90
         assert s["tx_budget"]["rate"] == 360, "the budget is the rate the reports set"
-        assert endpoint(doc, "fast")["radio_status"]["rate"] == FAST_CEILING
+        assert endpoint(doc, "fast")["radio_status"]["rate"] == FAST_START
 
         # The autopilot hears the bond: the fast member has room, so the bond has.
         i = ap.wait_heard(lambda f: f["rxerrors"] == 1020)
@@ -217,7 +220,7 @@ def test_the_autopilot_hears_the_bond_and_each_budget_follows_its_radio(pty_pair
         j = ap.wait_heard(lambda f: f["txbuf"] == 10, after=n)
         full = ap.heard()[j][3]
         assert full["rxerrors"] == 1020 and full["rssi"] == 200  # ties: the stronger signal
-        assert endpoint(status_document(sock), "fast")["radio_status"]["rate"] == 46080
+        assert endpoint(status_document(sock), "fast")["radio_status"]["rate"] == FAST_START // 2
 
         # The slow radio empties: its budget climbs a tenth of its ceiling a report while the
         # rate holds the stream back (samples thinned since the report before), and stays once
@@ -297,10 +300,10 @@ def test_a_radio_status_from_anyone_else_changes_nothing(pty_pair, gateway, tmp_
     lte = mavutil.mavlink_connection(f"udpout:{HOST}:{lte_port}", source_system=51,
                                      source_component=68, dialect="ardupilotmega")
     try:
-        report_in_step(slow, "slow", sock, 45)   # 5760 -> 4320
+        report_in_step(slow, "slow", sock, 45)   # 2880 -> 2160
         report_in_step(fast, "fast", sock, 100)
         base = status_document(sock)
-        assert endpoint(base, "slow")["radio_status"]["rate"] == 4320
+        assert endpoint(base, "slow")["radio_status"]["rate"] == 2160
 
         slow.report(0, sysid=52, compid=68)      # another system on the radio's line
         slow.report(0, sysid=51, compid=1)       # another component
@@ -313,7 +316,7 @@ def test_a_radio_status_from_anyone_else_changes_nothing(pty_pair, gateway, tmp_
         wait_status(sock, lambda d: endpoint(d, "ap")["rx_frames"] > ap_rx)
 
         doc = status_document(sock)
-        for name, rate in (("slow", 4320), ("fast", FAST_CEILING)):
+        for name, rate in (("slow", 2160), ("fast", FAST_START)):
             r = endpoint(doc, name)["radio_status"]
             assert r["rate"] == rate and r["reports"] == 1, (name, r)
             assert endpoint(doc, name)["tx_budget"]["rate"] == rate
@@ -349,7 +352,7 @@ def test_reports_that_pile_up_in_a_stall_each_count(pty_pair, gateway, tmp_path)
     ap.start()
     try:
         report_in_step(fast, "fast", sock, 100)
-        assert report_in_step(slow, "slow", sock, 100)["rate"] == SLOW_CEILING
+        assert report_in_step(slow, "slow", sock, 100)["rate"] == SLOW_START
         gw.proc.send_signal(signal.SIGSTOP)
         try:
             for _ in range(3):
@@ -359,7 +362,7 @@ def test_reports_that_pile_up_in_a_stall_each_count(pty_pair, gateway, tmp_path)
             gw.proc.send_signal(signal.SIGCONT)
         doc = wait_status(sock, lambda d: endpoint(d, "slow")["radio_status"]["reports"] == 4)
         r = endpoint(doc, "slow")["radio_status"]
-        assert (r["rate"], r["decreases"], r["stale"]) == (720, 3, 0), r
+        assert (r["rate"], r["decreases"], r["stale"]) == (360, 3, 0), r
         n = len(ap.heard())
         ap.wait_heard(lambda f: True, after=n)
         assert all(v == 2 for v, _, _, _ in ap.heard()), "a radio's own report got through"
@@ -380,8 +383,8 @@ def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, ga
     ap.start()
     try:
         report_in_step(fast, "fast", sock, 100)
-        assert report_in_step(slow, "slow", sock, 10)["rate"] == 2880
         assert report_in_step(slow, "slow", sock, 10)["rate"] == 1440
+        assert report_in_step(slow, "slow", sock, 10)["rate"] == 720
         ap.streaming.set()
         time.sleep(1.0)   # a stream in flight across the reload
         sent_before = status_document(sock)
@@ -389,9 +392,9 @@ def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, ga
         gw.config_path.write_text(bond_config(eps, AIR, status_socket=str(sock)))
         gw.proc.send_signal(signal.SIGHUP)
         gw.wait_log(r"reloaded: ")
-        assert "reload: [slow] transmit budget now 1440 B/s" in gw.log()
+        assert "reload: [slow] transmit budget now 720 B/s" in gw.log()
         r = report_in_step(slow, "slow", sock, 100)
-        assert (r["ceiling"], r["rate"]) == (4000, 1840)   # 1440 + a tenth of 4000
+        assert (r["ceiling"], r["rate"]) == (4000, 1120)   # 720 + a tenth of 4000
         n = len(ap.heard())
         ap.wait_heard(lambda f: True, after=n)
         after = status_document(sock)
@@ -423,7 +426,7 @@ def test_a_reload_keeps_what_the_reports_learned_and_loses_no_frame(pty_pair, ga
         assert "radio_status" not in endpoint(doc, "slow") and "tx_budget" not in endpoint(doc, "slow")
         assert gw.log().count("open at 57600 baud") == 1
         print(f"\nreload mid-stream: {len(sent)} ATTITUDE frames, every one on the fast radio "
-              f"in order; the slow radio's rate kept at 1440 B/s under its new 4000 B/s ceiling")
+              f"in order; the slow radio's rate kept at 720 B/s under its new 4000 B/s ceiling")
     finally:
         ap.close()
         slow.stop_flag.set()

@@ -61,7 +61,7 @@ TEST(Status, JsonCarriesEveryPart) {
     EXPECT_NE(std::string::npos, j.find("\"last_rx_ms_ago\":-1}")) << j;  // gcs: never heard
     EXPECT_NE(std::string::npos,
               j.find("{\"name\":\"vehicle\",\"tx\":\"active\",\"active\":\"radio@127.0.0.1:9\","
-                     "\"switches\":3,\"numbering\":{\"numbered\":0,\"expired\":0,\"untracked\":0},"
+                     "\"switches\":3,\"numbering\":{\"numbered\":0,\"expired\":0,\"untracked\":0,\"superseded\":0},"
                      "\"renumber\":{\"renumbered\":5,\"gaps\":1}}"))
         << j;
     EXPECT_NE(std::string::npos,

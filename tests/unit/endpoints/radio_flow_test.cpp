@@ -1,6 +1,6 @@
-// A radio's reports on a simulated clock: the budget halves or loses a quarter on a low txbuf,
-// climbs a tenth of the ceiling on a high one, never leaves [floor, ceiling], goes back to the
-// ceiling when the reports stop; only a SiK radio's RADIO_STATUS is a report; a bond reports
+// A radio's reports on a simulated clock: the budget starts at half the ceiling, halves or loses
+// a quarter on a low txbuf, climbs a tenth of the ceiling on a high one, never leaves [floor,
+// ceiling], goes to the ceiling when the reports stop (or never come); only a SiK radio's RADIO_STATUS is a report; a bond reports
 // what its best member can carry.
 #include "endpoints/radio_flow.h"
 
@@ -15,6 +15,14 @@ namespace mavbond {
 namespace {
 
 const TimePoint t0 = TimePoint{} + seconds(100);
+
+/// A radio's flow whose link began kStale before t0 with no report since: at its ceiling, where
+/// the tests of the reports' steps start.
+RadioFlow at_ceiling(uint64_t ceiling) {
+    RadioFlow flow(ceiling, t0 - RadioFlow::kStale);
+    flow.check(t0);
+    return flow;
+}
 
 RadioReport txbuf(uint8_t free_percent) {
     RadioReport r;
@@ -66,7 +74,7 @@ TEST(RadioReportTest, OnlyASikRadiosStatusIsItsReport) {
 }
 
 TEST(RadioFlowTest, AFullBufferHalvesTheRateDownToTheFloor) {
-    RadioFlow flow(5760);
+    RadioFlow flow = at_ceiling(5760);
     EXPECT_EQ(5760u, flow.rate());
     EXPECT_EQ(360u, flow.floor());  // a sixteenth
     std::vector<uint64_t> rates;
@@ -78,7 +86,7 @@ TEST(RadioFlowTest, AFullBufferHalvesTheRateDownToTheFloor) {
 }
 
 TEST(RadioFlowTest, ALowBufferTakesAQuarterAMiddlingOneHolds) {
-    RadioFlow flow(8000);
+    RadioFlow flow = at_ceiling(8000);
     EXPECT_EQ(6000u, flow.report(txbuf(49), t0));
     EXPECT_EQ(6000u, flow.report(txbuf(50), t0 + seconds(1)));
     EXPECT_EQ(6000u, flow.report(txbuf(90), t0 + seconds(2)));
@@ -87,7 +95,7 @@ TEST(RadioFlowTest, ALowBufferTakesAQuarterAMiddlingOneHolds) {
 }
 
 TEST(RadioFlowTest, AnEmptyBufferClimbsATenthOfTheCeilingAtATime) {
-    RadioFlow flow(5000);
+    RadioFlow flow = at_ceiling(5000);
     for (int i = 0; i < 4; i++)
         flow.report(txbuf(0), t0 + seconds(i));
     ASSERT_EQ(flow.floor(), flow.rate());
@@ -102,7 +110,7 @@ TEST(RadioFlowTest, AnEmptyBufferClimbsATenthOfTheCeilingAtATime) {
 }
 
 TEST(RadioFlowTest, ReportsThatStopPutTheRateBackToTheCeiling) {
-    RadioFlow flow(5760);
+    RadioFlow flow = at_ceiling(5760);
     flow.report(txbuf(5), t0);
     ASSERT_EQ(2880u, flow.rate());
     EXPECT_TRUE(flow.fresh(t0 + seconds(4)));
@@ -118,15 +126,28 @@ TEST(RadioFlowTest, ReportsThatStopPutTheRateBackToTheCeiling) {
     EXPECT_EQ(2880u, flow.check(t0 + seconds(11)));
 }
 
-TEST(RadioFlowTest, NeverAReportMeansNeverStaleAndTheCeiling) {
-    RadioFlow flow(1000);
-    EXPECT_FALSE(flow.fresh(t0));
-    EXPECT_EQ(1000u, flow.check(t0 + seconds(60)));
+TEST(RadioFlowTest, TheRateStartsAtHalfTheCeilingAndTheReportsRaiseIt) {
+    // A SiK radio behind a 57600-baud line airs less than the line carries: the first burst
+    // must not go at the line's rate before the radio's first report.
+    RadioFlow flow(5760, t0);
+    EXPECT_EQ(2880u, flow.rate());
+    EXPECT_EQ(2880u, flow.check(t0 + seconds(4)));
+    EXPECT_EQ(3456u, flow.report(txbuf(95), t0 + seconds(1)));  // room, and the rate held back
+    EXPECT_EQ(3456u, flow.check(t0 + seconds(5)));  // kStale from the start, a report since
     EXPECT_EQ(0u, flow.counters().stale);
 }
 
+TEST(RadioFlowTest, ARadioThatNeverReportsGetsTheCeilingAfterKStale) {
+    RadioFlow flow(1000, t0);
+    EXPECT_FALSE(flow.fresh(t0));
+    EXPECT_EQ(500u, flow.check(t0 + RadioFlow::kStale - milliseconds(1)));
+    EXPECT_EQ(1000u, flow.check(t0 + RadioFlow::kStale));
+    EXPECT_EQ(1000u, flow.check(t0 + seconds(60)));
+    EXPECT_EQ(0u, flow.counters().stale) << "no report stopped: none ever came";
+}
+
 TEST(RadioFlowTest, ANewCeilingKeepsWhatTheReportsLearnedWithinIt) {
-    RadioFlow flow(8000);
+    RadioFlow flow = at_ceiling(8000);
     flow.report(txbuf(45), t0);  // 6000
     flow.set_ceiling(4000);
     EXPECT_EQ(4000u, flow.rate());
@@ -223,7 +244,7 @@ TEST(BondReportTest, ErrorCountsSaturate) {
 TEST(RadioFlowTest, AnEmptyBufferRaisesNoRateThatHeldNothingBack) {
     // The buffer of a radio given less than its budget lets stays empty, whatever the radio
     // could carry: that says nothing of a higher rate.
-    RadioFlow flow(5000);
+    RadioFlow flow = at_ceiling(5000);
     flow.report(txbuf(10), t0);
     ASSERT_EQ(2500u, flow.rate());
     for (int i = 1; i < 5; i++)
