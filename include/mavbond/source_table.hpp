@@ -15,23 +15,34 @@ namespace mavbond {
 template <class Value, uint32_t Capacity>
 class SourceTable {
 public:
-    Value* find(uint8_t sysid, uint8_t compid) {
+    static constexpr uint32_t kMaxSources = Capacity * 3 / 4;
+    static constexpr uint32_t kFull = UINT32_MAX;
+
+    /// The slot of (sysid, compid), which keeps it for the table's life (a compact reference
+    /// to it: at()); added the first time, kFull once the table is full.
+    uint32_t slot(uint8_t sysid, uint8_t compid) {
         auto key = static_cast<uint16_t>(sysid << 8 | compid);
         uint32_t i = (key * 40503u >> 4) % Capacity;  // spreads neighbouring compids
         for (uint32_t n = 0; n < Capacity; n++, i = (i + 1) % Capacity) {
             Slot& s = slots_[i];
             if (s.used && s.key == key)
-                return &s.value;
+                return i;
             if (!s.used) {
-                if (used_ * 4 >= Capacity * 3)
-                    return nullptr;
+                if (used_ >= kMaxSources)
+                    return kFull;
                 s.used = true;
                 s.key = key;
                 used_++;
-                return &s.value;
+                return i;
             }
         }
-        return nullptr;
+        return kFull;
+    }
+    Value& at(uint32_t slot) { return slots_[slot].value; }
+
+    Value* find(uint8_t sysid, uint8_t compid) {
+        const uint32_t i = slot(sysid, compid);
+        return i == kFull ? nullptr : &slots_[i].value;
     }
 
     /// Calls f(value) for every source in the table.

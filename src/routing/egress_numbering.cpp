@@ -2,33 +2,17 @@
 
 namespace mavbond {
 
-EgressNumbering::EgressNumbering() : sources_(kMaxSources), tickets_(kTickets) {}
-
-EgressNumbering::Source* EgressNumbering::source(uint8_t sysid, uint8_t compid) {
-    uint32_t id = static_cast<uint32_t>(sysid) << 8 | compid;
-    uint32_t i = (id * 2654435761u >> 16) % kMaxSources;
-    for (uint32_t probes = 0; probes < kMaxSources; probes++, i = (i + 1) % kMaxSources) {
-        Source& s = sources_[i];
-        if (!s.in_use) {
-            s.in_use = true;
-            s.sysid = sysid;
-            s.compid = compid;
-            return &s;
-        }
-        if (s.sysid == sysid && s.compid == compid)
-            return &s;
-    }
-    return nullptr;
-}
+EgressNumbering::EgressNumbering() : tickets_(kTickets) {}
 
 uint64_t EgressNumbering::issue(const Frame& frame) {
     if (frame.is_signed())
         return 0;
-    Source* s = source(frame.sysid, frame.compid);
-    if (!s) {
+    const uint32_t slot = sources_.slot(frame.sysid, frame.compid);
+    if (slot == Sources::kFull) {
         counters_.untracked++;
         return 0;
     }
+    Source* s = &sources_.at(slot);
     if (!s->started) {
         // The source's first frame: its own number is where the bond's numbering starts.
         s->started = true;
@@ -38,7 +22,7 @@ uint64_t EgressNumbering::issue(const Frame& frame) {
     }
     s->last_seq = frame.seq;
     const uint64_t id = next_id_++;
-    tickets_[id % kTickets] = Ticket{id, static_cast<uint16_t>(s - sources_.data()), -1};
+    tickets_[id % kTickets] = Ticket{id, static_cast<uint16_t>(slot), -1};
     return id;
 }
 
@@ -48,12 +32,12 @@ uint8_t EgressNumbering::number(uint64_t ticket, uint8_t sysid, uint8_t compid) 
     if (t.id == ticket) {
         if (t.number >= 0)
             return static_cast<uint8_t>(t.number);
-        s = &sources_[t.source];
+        s = &sources_.at(t.source);
     } else {
         // Reused by a later routing: the frame waited past any budget's or resend's hold. It
         // takes the next number of its source, as a first copy would.
         counters_.expired++;
-        s = source(sysid, compid);  // there: it had a ticket, and sources are never forgotten
+        s = sources_.find(sysid, compid);  // there: it had a ticket, sources are never forgotten
         if (!s)
             return 0;
     }
@@ -74,7 +58,8 @@ bool EgressNumbering::superseded(uint64_t ticket) {
     if (t.id != ticket || t.number < 0)
         return false;
     // How far back the far side must step for it from the source's next frame.
-    if (sources_[t.source].given + sources_[t.source].owed - t.given_at < kMaxLag)
+    const Source& s = sources_.at(t.source);
+    if (s.given + s.owed - t.given_at < kMaxLag)
         return false;
     counters_.superseded++;
     return true;

@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "mavbond/source_table.hpp"
 #include "mavlink/frame.h"
 
 namespace mavbond {
@@ -34,7 +35,8 @@ namespace mavbond {
 class EgressNumbering {
 public:
     static constexpr size_t kTickets = 8192;
-    static constexpr uint32_t kMaxSources = 64;
+    static constexpr uint32_t kSourceSlots = 128;
+    static constexpr uint32_t kMaxSources = SourceTable<char, kSourceSlots>::kMaxSources;
     // How far behind its source's newest number a held copy may still go: under half of 256
     // (a step back the far side reads as one), with room for the link's own later frames.
     static constexpr uint64_t kMaxLag = 96;
@@ -62,8 +64,6 @@ public:
 
 private:
     struct Source {
-        bool in_use = false;
-        uint8_t sysid = 0, compid = 0;
         bool started = false;
         uint8_t last_seq = 0;  // the source's own number of the last frame issued
         uint8_t next = 0;      // the next number to give
@@ -77,9 +77,9 @@ private:
         uint64_t given_at = 0; // its source's `given` once it took its number
     };
 
-    Source* source(uint8_t sysid, uint8_t compid);
+    using Sources = SourceTable<Source, kSourceSlots>;
 
-    std::vector<Source> sources_;  // open addressing on (sysid, compid)
+    Sources sources_;  // a ticket names its source by its slot
     std::vector<Ticket> tickets_;  // a ring by id
     uint64_t next_id_ = 1;
     Counters counters_;

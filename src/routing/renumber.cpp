@@ -1,26 +1,6 @@
 #include "routing/renumber.h"
 
-
 namespace mavbond {
-
-SeqRenumberer::SeqRenumberer() : sources_(kMaxSources) {}
-
-SeqRenumberer::Source* SeqRenumberer::source(uint8_t sysid, uint8_t compid) {
-    uint32_t id = static_cast<uint32_t>(sysid) << 8 | compid;
-    uint32_t i = (id * 2654435761u >> 16) % kMaxSources;
-    for (uint32_t probes = 0; probes < kMaxSources; probes++, i = (i + 1) % kMaxSources) {
-        Source& s = sources_[i];
-        if (!s.in_use) {
-            s.in_use = true;
-            s.sysid = sysid;
-            s.compid = compid;
-            return &s;
-        }
-        if (s.sysid == sysid && s.compid == compid)
-            return &s;
-    }
-    return nullptr;
-}
 
 uint8_t SeqRenumberer::next_number(Source& s) {
     auto out = static_cast<uint8_t>(s.next_out + s.owed);
@@ -32,7 +12,7 @@ uint8_t SeqRenumberer::next_number(Source& s) {
 
 uint8_t SeqRenumberer::deliver(uint8_t sysid, uint8_t compid, uint8_t seq, int64_t pos,
                                int64_t t_ns) {
-    Source* s = source(sysid, compid);
+    Source* s = sources_.find(sysid, compid);
     if (!s) {
         counters_.untracked++;
         return seq;
@@ -51,7 +31,7 @@ uint8_t SeqRenumberer::deliver(uint8_t sysid, uint8_t compid, uint8_t seq, int64
 }
 
 uint8_t SeqRenumberer::deliver_unplaced(uint8_t sysid, uint8_t compid, uint8_t seq) {
-    Source* s = source(sysid, compid);
+    Source* s = sources_.find(sysid, compid);
     if (!s) {
         counters_.untracked++;
         return seq;
@@ -64,7 +44,7 @@ uint8_t SeqRenumberer::deliver_unplaced(uint8_t sysid, uint8_t compid, uint8_t s
 }
 
 std::optional<uint8_t> SeqRenumberer::add(uint8_t sysid, uint8_t compid) {
-    Source* s = source(sysid, compid);
+    Source* s = sources_.find(sysid, compid);
     if (!s || !s->holes)
         return std::nullopt;
     counters_.added++;

@@ -23,8 +23,8 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
-#include <vector>
 
+#include "mavbond/source_table.hpp"
 #include "mavbond/stream_holes.hpp"
 
 namespace mavbond {
@@ -40,9 +40,9 @@ public:
         uint64_t added = 0;        // frames mavbond added to a source's stream
     };
 
-    static constexpr uint32_t kMaxSources = 64;
+    static constexpr uint32_t kSourceSlots = 128;
+    static constexpr uint32_t kMaxSources = SourceTable<char, kSourceSlots>::kMaxSources;
 
-    SeqRenumberer();
 
     /// A frame the bond delivers, at position `pos` of its source's stream (as dedup numbers
     /// it), received at t_ns; `seq` is its own number, kept for a source's first frame.
@@ -59,20 +59,15 @@ public:
 
 private:
     struct Source {
-        bool in_use = false;
-        uint8_t sysid = 0;
-        uint8_t compid = 0;
         uint8_t next_out = 0;   // the output number the next frame gets, before owed gaps
         uint64_t owed = 0;      // holes lost (on every link), not yet stepped over
         std::unique_ptr<StreamHoles> holes;  // from the source's first placed frame
     };
 
-    Source* source(uint8_t sysid, uint8_t compid);
-
     /// The output number for the next delivered frame of `s`, stepping over the gaps owed.
     uint8_t next_number(Source& s);
 
-    std::vector<Source> sources_;  // open addressing on (sysid, compid)
+    SourceTable<Source, kSourceSlots> sources_;
     Counters counters_;
 };
 
