@@ -71,19 +71,26 @@ RADIO_STATUS_CRC_EXTRA = 185
 
 
 class Records:
-    """One JSON-lines file, written as records come (buffered), complete once closed."""
+    """One JSON-lines file, kept in memory as records come and written once closed: the radio
+    loop does no file I/O. (Written as they came, a write held up by the disk's writeback
+    stalled the radio thread of both rigs at once for 5-9 s: no frame read or aired, no
+    RADIO_STATUS, SITL's UART unread; the gateways rightly saw a dead radio.)"""
 
     def __init__(self, path: Path):
-        self.f = open(path, "w")
+        self.path = path
+        self.records: List[dict] = []
         self.lock = threading.Lock()
 
     def add(self, **record) -> None:
         with self.lock:
-            self.f.write(json.dumps(record) + "\n")
+            self.records.append(record)
 
     def close(self) -> None:
         with self.lock:
-            self.f.close()
+            with open(self.path, "w") as f:
+                for r in self.records:
+                    f.write(json.dumps(r) + "\n")
+            self.records = []
 
 
 class Frames:
