@@ -421,7 +421,7 @@ void Dedup::note_position(const Arrival& a, Lane& lane, int64_t pos) {
                 s.span_pos = pos;
                 s.span_t = a.t;
             } else if (a.t - s.span_t >= kRateSpan) {
-                s.ns_per_frame = (a.t - s.span_t) / static_cast<uint64_t>(pos - s.span_pos);
+                s.ns_per_frame = frame_interval(a.t - s.span_t, pos - s.span_pos, s.ns_per_frame);
                 s.span_pos = pos;
                 s.span_t = a.t;
             }

@@ -79,6 +79,14 @@ constexpr uint32_t kSampleStreams = 4096;
 // Upper bound for max_entries: a typo must not allocate gigabytes at start.
 constexpr int64_t kMaxEntriesLimit = int64_t{1} << 24;
 
+// The source's frame interval over a span of `span_ns` in which its head moved `frames`
+// forward. None or fewer where a correction moved the head back behind the span's start
+// (correct_tentative): the span tells nothing then, and the interval known stays (dividing by
+// it crashed the daemon in the operator stage).
+inline uint64_t frame_interval(uint64_t span_ns, int64_t frames, uint64_t known) {
+    return frames > 0 ? span_ns / static_cast<uint64_t>(frames) : known;
+}
+
 enum class HashKind { murmur3_128, murmur3_32 };
 enum class KeyKind { frame, content };
 

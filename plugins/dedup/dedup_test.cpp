@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "allocations.h"
+#include "dedup.h"
 #include "fake_host.h"
 #include "mavbond/plugin.h"
 
@@ -107,6 +108,15 @@ public:  // the simulations below feed through it
     const mavbond_link* b_ = nullptr;
     void* self_ = nullptr;
 };
+
+// A span in which the head did not move forward (a correction moved it back behind the span's
+// start) keeps the interval known; before, it divided by zero (SIGFPE in the operator stage).
+TEST(DedupFrameInterval, ASpanWithTheHeadNoFurtherKeepsTheIntervalKnown) {
+    EXPECT_EQ(8'000'000u, dedup::frame_interval(dedup::kSecond, 125, 0));
+    EXPECT_EQ(8'000'000u, dedup::frame_interval(dedup::kSecond, 0, 8'000'000));
+    EXPECT_EQ(8'000'000u, dedup::frame_interval(dedup::kSecond, -3, 8'000'000));
+    EXPECT_EQ(0u, dedup::frame_interval(dedup::kSecond, 0, 0));
+}
 
 TEST_F(DedupTest, CopyFromAnotherLinkIsDropped) {
     ASSERT_TRUE(create("window: 500ms"));
