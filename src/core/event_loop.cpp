@@ -226,6 +226,9 @@ bool EventLoop::run_once(Duration max_wait) {
         timeout = 0;
     std::array<epoll_event, 64> events;
     polled_after_ = now_;
+    const TimePoint waited_from = Clock::now();  // the previous round's end
+    if (round_ > 0)
+        note_stalls(waited_from, Duration::zero());
     int n = epoll_wait(epoll_fd_.get(), events.data(), static_cast<int>(events.size()), timeout);
     if (n < 0) {
         if (errno != EINTR) {
@@ -235,6 +238,8 @@ bool EventLoop::run_once(Duration max_wait) {
         n = 0;
     }
     now_ = Clock::now();
+    if (timeout >= 0)
+        note_stalls(now_, now_ - (waited_from + milliseconds(timeout)));
     round_++;
     // A full event array may have left ready fds out: their data waits for the next round,
     // which must come at once.
@@ -261,6 +266,32 @@ bool EventLoop::run_once(Duration max_wait) {
     }
     graveyard_.clear();
     return !exit_requested_;
+}
+
+void EventLoop::note_stalls(TimePoint ended, Duration late) {
+    const bool woke = late > Duration::zero();  // else: a round that ended at `ended`
+    const Duration took = woke ? late : ended - now_;
+    Duration& longest = woke ? stalls_.latest_wakeup : stalls_.longest_round;
+    longest = std::max(longest, took);
+    if (took < kStall)
+        return;
+    (woke ? stalls_.late_wakeups : stalls_.long_rounds)++;
+    if (took < kStallLogged)
+        return;
+    long_stalls_++;
+    if (stall_logged_ != TimePoint{} && ended - stall_logged_ < kStallLogEvery)
+        return;
+    stall_logged_ = ended;
+    const double s = std::chrono::duration<double>(took).count();
+    if (woke)
+        log_warning("event loop woke %.2f s later than its next timer (the process had no CPU or "
+                    "was stopped); %llu such stall%s of 1 s or more in all", s,
+                    static_cast<unsigned long long>(long_stalls_), long_stalls_ == 1 ? "" : "s");
+    else
+        log_warning("event loop: one round took %.2f s (a handler waited in a syscall or work "
+                    "piled up; every frame waited behind it); %llu such stall%s of 1 s or more "
+                    "in all", s, static_cast<unsigned long long>(long_stalls_),
+                    long_stalls_ == 1 ? "" : "s");
 }
 
 int EventLoop::run() {

@@ -112,6 +112,22 @@ public:
     /// monotonic, in ns: read once per round, when first asked.
     int64_t wall_minus_monotonic_ns() const;
 
+    /// How the loop kept time, the daemon's own evidence of a stall: a round that ran long (a
+    /// handler that blocked in a syscall, or work piled up) held every frame behind it; a
+    /// wakeup later than epoll_wait was asked for means the process had no CPU (a busy
+    /// machine) or was stopped. One clock read per round buys it.
+    struct Stalls {
+        Duration longest_round{};   // handlers, hooks and timers of one round
+        uint64_t long_rounds = 0;   // rounds of kStall or more
+        Duration latest_wakeup{};   // beyond the timeout epoll_wait was given
+        uint64_t late_wakeups = 0;  // of kStall or more
+    };
+    static constexpr Duration kStall = milliseconds(100);
+    /// A stall this long is logged (at most once per kStallLogEvery, with how many there were).
+    static constexpr Duration kStallLogged = seconds(1);
+    static constexpr Duration kStallLogEvery = seconds(10);
+    const Stalls& stalls() const { return stalls_; }
+
 private:
     struct WatchRecord {
         int fd;
@@ -132,6 +148,9 @@ private:
     void run_due_timers();
     int timeout_ms() const;
     void handle_signals();
+    /// Counts the round that ran from now_ to `ended`, and a wakeup at now_ `late` after the
+    /// timeout asked for.
+    void note_stalls(TimePoint ended, Duration late);
 
     UniqueFd epoll_fd_;
     std::vector<std::unique_ptr<WatchRecord>> watches_;
@@ -152,6 +171,9 @@ private:
     bool all_reported_ = true;
     mutable int64_t wall_minus_monotonic_ = 0;
     mutable uint64_t wall_round_ = UINT64_MAX;  // the round wall_minus_monotonic_ was read in
+    Stalls stalls_;
+    TimePoint stall_logged_{};  // when a stall was last logged
+    uint64_t long_stalls_ = 0;  // stalls of kStallLogged or more
     bool exit_requested_ = false;
     int exit_code_ = 0;
 };

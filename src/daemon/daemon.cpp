@@ -491,6 +491,7 @@ Status Daemon::status() const {
     s.taken = loop_.now();
     s.uptime = s.taken - started_;
     s.status_refused = status_ ? status_->refused() : 0;
+    s.stalls = loop_.stalls();
     for (const auto& e : endpoints_)
         s.endpoints.push_back(endpoint_status(*e, s.taken, config_->link_events.silent_after));
     for (uint32_t b = 0; b < router_.bonds().size(); b++) {

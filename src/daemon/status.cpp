@@ -138,6 +138,8 @@ std::string radio_json(const RadioFlow& r, TimePoint now) {
            (c.reports ? report_json(r.last()) : "null") + "}";
 }
 
+int64_t whole_ms(Duration d) { return std::chrono::duration_cast<milliseconds>(d).count(); }
+
 }  // namespace
 
 Status::Endpoint endpoint_status(const Endpoint& e, TimePoint now, Duration silent_after) {
@@ -162,7 +164,12 @@ Status::Endpoint endpoint_status(const Endpoint& e, TimePoint now, Duration sile
 std::string status_json(const Status& s) {
     std::string out = "{\"version\":\"" MAVBOND_VERSION "\",\"uptime_s\":" +
                       std::to_string(std::chrono::duration_cast<seconds>(s.uptime).count()) +
-                      ",\"status_refused\":" + std::to_string(s.status_refused) + ",\"endpoints\":[";
+                      ",\"status_refused\":" + std::to_string(s.status_refused) + ",\"event_loop\":{" +
+                      "\"longest_round_ms\":" + std::to_string(whole_ms(s.stalls.longest_round)) +
+                      ",\"long_rounds\":" + std::to_string(s.stalls.long_rounds) +
+                      ",\"latest_wakeup_ms\":" + std::to_string(whole_ms(s.stalls.latest_wakeup)) +
+                      ",\"late_wakeups\":" + std::to_string(s.stalls.late_wakeups) +
+                      "},\"endpoints\":[";
     for (size_t i = 0; i < s.endpoints.size(); i++) {
         const Status::Endpoint& e = s.endpoints[i];
         out += std::string(i ? "," : "") + "{\"name\":\"" + e.name + "\",\"kind\":\"" + e.kind +
@@ -416,6 +423,19 @@ MetricSet status_metrics(const Status& s) {
                         {{"bond", b.name}});
         });
     }
+    set.gauge("mavbond_event_loop_longest_round_seconds",
+              "The longest round of the event loop (its handlers, hooks and timers): a handler "
+              "that waited in a syscall held every frame behind it that long.",
+              std::chrono::duration<double>(s.stalls.longest_round).count());
+    set.counter("mavbond_event_loop_long_rounds",
+                "Rounds of the event loop that took 100 ms or more.", s.stalls.long_rounds);
+    set.gauge("mavbond_event_loop_latest_wakeup_seconds",
+              "How much later than its next timer the event loop woke at worst: the process "
+              "had no CPU (a busy machine) or was stopped.",
+              std::chrono::duration<double>(s.stalls.latest_wakeup).count());
+    set.counter("mavbond_event_loop_late_wakeups",
+                "Wakeups of the event loop 100 ms or more later than its next timer.",
+                s.stalls.late_wakeups);
     set.counter("mavbond_standby_reports_dropped",
                 "Standby reports (mbl:) no bond took: from outside every bond, or on a bond "
                 "without a metered link. Never routed on.",

@@ -12,6 +12,7 @@
 #include "routing/standby.h"
 
 #include "core/clock.h"
+#include "core/event_loop.h"
 #include "core/metric_set.h"
 #include "endpoints/endpoint.h"
 #include "routing/filter_chain.h"
@@ -66,6 +67,7 @@ struct Status {
     TimePoint taken;
     Duration uptime{};
     uint64_t status_refused = 0;  // status socket connections refused by the credentials check
+    EventLoop::Stalls stalls;     // the event loop's own evidence of a stall
     std::vector<Endpoint> endpoints;
     std::vector<Bond> bonds;
     uint64_t frames_routed = 0;

@@ -182,6 +182,14 @@ void print_table(const pt::ptree& doc) {
         if (auto radio = e.get_child_optional("radio_status"))
             printf("radio %s: %s\n", e.get("name", "").c_str(), radio_line(*radio).c_str());
     }
+    // Stalls of the daemon's own loop (100 ms or more): the machine or a blocking call held
+    // every frame that long.
+    if (auto late = doc.get("event_loop.late_wakeups", 0ull), rounds = doc.get("event_loop.long_rounds", 0ull);
+        late + rounds > 0)
+        printf("event loop: woke up to %s ms late (%llu times), longest round %s ms (%llu of 100 ms "
+               "or more)\n",
+               doc.get("event_loop.latest_wakeup_ms", "0").c_str(), late,
+               doc.get("event_loop.longest_round_ms", "0").c_str(), rounds);
     if (auto refused = doc.get("status_refused", 0ull); refused > 0)
         printf("status socket: %llu %s refused (credentials)\n", refused,
                refused == 1 ? "connection" : "connections");

@@ -214,12 +214,19 @@ def test_a_frozen_gateway_delivers_what_an_unfrozen_one_does(lab, tmp_path, sc):
         checks.append((not unjustified, f"{g}: {len(unjustified)} good frames dropped"))
         checks.append((justified == stale, f"{g}: {justified} missing, {stale} stale"))
         checks.append((overflows == 0, f"{g}: {overflows} receive overflows"))
-        report.append(f"[{sc.name} {g}] dedup: {links}")
+        report.append(f"[{sc.name} {g}] dedup: {links}; event loop: {docs[g]['event_loop']}")
     print("\n".join(report))
     for ok, what in checks:
         assert ok, what
     assert stall.count >= int(sc.seconds / 2.5), stall.summary()
     assert held_back(logs["frozen"]) > 0, "the freezes left no backlog to merge"
+    # The frozen gateway's own clock saw its longest freeze: stopped while it waited, it woke
+    # at least the freeze less its longest wait (the link-event tick, 100 ms) after its timer;
+    # stopped in a round, that round took the whole freeze.
+    loop, longest = docs["frozen"]["event_loop"], max(e - s for s, e in stall.stalls)
+    seen_ms = max(loop["latest_wakeup_ms"], loop["longest_round_ms"])
+    assert loop["late_wakeups"] + loop["long_rounds"] >= 1 and seen_ms >= 1000 * longest - 100, \
+        (loop, stall.summary())
     # The claim itself: the same frames, in the same order, only later.
     assert got["frozen"] == got["steady"], first_difference(got["frozen"], got["steady"])
 
