@@ -284,8 +284,9 @@ void EventLoop::note_stalls(TimePoint ended, Duration late) {
     stall_logged_ = ended;
     const double s = std::chrono::duration<double>(took).count();
     if (woke)
-        log_warning("event loop woke %.2f s later than its next timer (the process had no CPU or "
-                    "was stopped); %llu such stall%s of 1 s or more in all", s,
+        log_warning("event loop woke %.2f s later than its next timer (no CPU, stopped, or held "
+                    "in the kernel: a tty's poll waits for its flush worker); %llu such stall%s of "
+                    "1 s or more in all", s,
                     static_cast<unsigned long long>(long_stalls_), long_stalls_ == 1 ? "" : "s");
     else
         log_warning("event loop: one round took %.2f s (a handler waited in a syscall or work "

@@ -115,7 +115,9 @@ public:
     /// How the loop kept time, the daemon's own evidence of a stall: a round that ran long (a
     /// handler that blocked in a syscall, or work piled up) held every frame behind it; a
     /// wakeup later than epoll_wait was asked for means the process had no CPU (a busy
-    /// machine) or was stopped. One clock read per round buys it.
+    /// machine), was stopped, or the kernel held epoll_wait itself (a tty's poll waits for
+    /// the tty's flush worker, which a saturated machine can starve for seconds). One clock
+    /// read per round buys it.
     struct Stalls {
         Duration longest_round{};   // handlers, hooks and timers of one round
         uint64_t long_rounds = 0;   // rounds of kStall or more

@@ -197,6 +197,7 @@ class RadioPair(threading.Thread):
         self.credit = 0.0
         self.stop_flag = threading.Event()
         self.lock = threading.Lock()
+        self.longest_turn, self.long_turns = 0.0, 0   # the loop's own stalls (over 100 ms)
 
     def set_cut(self, cut: bool) -> float:
         with self.lock:
@@ -215,6 +216,8 @@ class RadioPair(threading.Thread):
             select.select(readable, [p.master for p in ptys if p.out], [], TICK)
             now = time.monotonic()
             dt, last = now - last, now
+            self.longest_turn = max(self.longest_turn, dt)
+            self.long_turns += dt >= 0.1
             with self.lock:
                 self._wire(now)
                 for r in radios:
@@ -397,7 +400,9 @@ def main() -> int:
     say(stopped=time.monotonic(), garbage={"air": radio.air.frames.garbage,
                                            "ground": radio.ground.frames.garbage,
                                            **{f"wire_{d}": p.garbage
-                                              for d, p in radio.wire_frames.items()}})
+                                              for d, p in radio.wire_frames.items()}},
+        radio_loop={"longest_turn_ms": round(radio.longest_turn * 1000),
+                    "long_turns": radio.long_turns})
     return 0
 
 

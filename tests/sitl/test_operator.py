@@ -119,6 +119,28 @@ def report(lines: List[str]) -> None:
 
 # --- the rig itself ----------------------------------------------------------------------------
 
+def stalls(run: Run) -> str:
+    """What stalled in a run, each by its own clock: each gateway's event loop (its status
+    counters at the last snapshot), the radio model's loop, and SITL's UART (its longest
+    silence on the wire)."""
+    parts = []
+    snap = run.rig.snapshots[-1] if run.rig.snapshots else None
+    for side in ("ground", "air"):
+        loop = snap.status.get(side, {}).get("event_loop") if snap else None
+        if loop:
+            parts.append(f"{side} gateway: longest round {loop['longest_round_ms']} ms "
+                         f"({loop['long_rounds']} of 100 ms or more), woke up to "
+                         f"{loop['latest_wakeup_ms']} ms late ({loop['late_wakeups']} times)")
+    model = run.rig.models.final.get("radio_loop")
+    if model:
+        parts.append(f"radio model: longest turn {model['longest_turn_ms']} ms "
+                     f"({model['long_turns']} of 100 ms or more)")
+    ups = [t for t, _ in run.records.wire["up"]]
+    if len(ups) > 1:
+        parts.append(f"SITL's UART: longest silence {max(b - a for a, b in zip(ups, ups[1:])):.2f} s")
+    return "; ".join(parts)
+
+
 def test_the_rig_is_sound(runs):
     """SITL listened on its RC port only; every frame a link took is one SITL (or the far
     side) sent; the models saw only whole frames. Not a product check: the others stand on
@@ -133,6 +155,7 @@ def test_the_rig_is_sound(runs):
                      f"up the radio {up['radio']}, up LTE {up['lte']}; hops not placed "
                      f"{r.unplaced}; SITL listened on {ports}; link models "
                      f"{rig.models.final.get('garbage')}")
+        lines.append(f"{name}: stalls (conditions, not judged): " + stalls(run))
         if any(r.unplaced.values()):
             wrong.append(f"{name}: frames on a link that SITL never sent: {r.unplaced}")
         if ports != [("udp", rig.ports["rc"])]:
