@@ -228,7 +228,7 @@ bool EventLoop::run_once(Duration max_wait) {
     polled_after_ = now_;
     const TimePoint waited_from = Clock::now();  // the previous round's end
     if (round_ > 0)
-        note_stalls(waited_from, Duration::zero());
+        note_stall(waited_from - now_, false, waited_from);
     int n = epoll_wait(epoll_fd_.get(), events.data(), static_cast<int>(events.size()), timeout);
     if (n < 0) {
         if (errno != EINTR) {
@@ -238,8 +238,8 @@ bool EventLoop::run_once(Duration max_wait) {
         n = 0;
     }
     now_ = Clock::now();
-    if (timeout >= 0)
-        note_stalls(now_, now_ - (waited_from + milliseconds(timeout)));
+    if (Duration late = now_ - (waited_from + milliseconds(timeout)); timeout >= 0 && late > Duration::zero())
+        note_stall(late, true, now_);
     round_++;
     // A full event array may have left ready fds out: their data waits for the next round,
     // which must come at once.
@@ -268,9 +268,7 @@ bool EventLoop::run_once(Duration max_wait) {
     return !exit_requested_;
 }
 
-void EventLoop::note_stalls(TimePoint ended, Duration late) {
-    const bool woke = late > Duration::zero();  // else: a round that ended at `ended`
-    const Duration took = woke ? late : ended - now_;
+void EventLoop::note_stall(Duration took, bool woke, TimePoint at) {
     Duration& longest = woke ? stalls_.latest_wakeup : stalls_.longest_round;
     longest = std::max(longest, took);
     if (took < kStall)
@@ -279,9 +277,9 @@ void EventLoop::note_stalls(TimePoint ended, Duration late) {
     if (took < kStallLogged)
         return;
     long_stalls_++;
-    if (stall_logged_ != TimePoint{} && ended - stall_logged_ < kStallLogEvery)
+    if (stall_logged_ != TimePoint{} && at - stall_logged_ < kStallLogEvery)
         return;
-    stall_logged_ = ended;
+    stall_logged_ = at;
     const double s = std::chrono::duration<double>(took).count();
     if (woke)
         log_warning("event loop woke %.2f s later than its next timer (no CPU, stopped, or held "

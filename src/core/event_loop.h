@@ -150,9 +150,9 @@ private:
     void run_due_timers();
     int timeout_ms() const;
     void handle_signals();
-    /// Counts the round that ran from now_ to `ended`, and a wakeup at now_ `late` after the
-    /// timeout asked for.
-    void note_stalls(TimePoint ended, Duration late);
+    /// Counts a round that took `took`, or (`woke`) a wakeup `took` after the timeout asked
+    /// for, either ending `at`.
+    void note_stall(Duration took, bool woke, TimePoint at);
 
     UniqueFd epoll_fd_;
     std::vector<std::unique_ptr<WatchRecord>> watches_;

@@ -431,7 +431,7 @@ MetricSet status_metrics(const Status& s) {
                 "Rounds of the event loop that took 100 ms or more.", s.stalls.long_rounds);
     set.gauge("mavbond_event_loop_latest_wakeup_seconds",
               "How much later than its next timer the event loop woke at worst: the process "
-              "had no CPU (a busy machine) or was stopped.",
+              "had no CPU (a busy machine), was stopped, or the kernel held it in a UART's poll.",
               std::chrono::duration<double>(s.stalls.latest_wakeup).count());
     set.counter("mavbond_event_loop_late_wakeups",
                 "Wakeups of the event loop 100 ms or more later than its next timer.",
