@@ -280,17 +280,13 @@ void EventLoop::note_stall(Duration took, bool woke, TimePoint at) {
     if (stall_logged_ != TimePoint{} && at - stall_logged_ < kStallLogEvery)
         return;
     stall_logged_ = at;
-    const double s = std::chrono::duration<double>(took).count();
-    if (woke)
-        log_warning("event loop woke %.2f s later than its next timer (no CPU, stopped, or held "
-                    "in the kernel: a tty's poll waits for its flush worker); %llu such stall%s of "
-                    "1 s or more in all", s,
-                    static_cast<unsigned long long>(long_stalls_), long_stalls_ == 1 ? "" : "s");
-    else
-        log_warning("event loop: one round took %.2f s (a handler waited in a syscall or work "
-                    "piled up; every frame waited behind it); %llu such stall%s of 1 s or more "
-                    "in all", s, static_cast<unsigned long long>(long_stalls_),
-                    long_stalls_ == 1 ? "" : "s");
+    log_warning("event loop %s %.2f s %s; %llu such stall%s of 1 s or more in all",
+                woke ? "woke" : "ran one round for", std::chrono::duration<double>(took).count(),
+                woke ? "later than its next timer (no CPU, stopped, or held in the kernel: a "
+                       "tty's poll waits for its flush worker)"
+                     : "(a handler waited in a syscall or work piled up; every frame waited "
+                       "behind it)",
+                static_cast<unsigned long long>(long_stalls_), long_stalls_ == 1 ? "" : "s");
 }
 
 int EventLoop::run() {
