@@ -69,13 +69,33 @@ bool is_radio_own_report(const uint8_t* f) {
 }
 
 void LinkAccount::continue_from(LinkAccount& older) {
-    if (markers_ != 0)
-        return;
-    const uint64_t mine = received_;
-    *this = older;
-    received_ += mine;
-    moved_ = false;
     older.moved_ = true;
+    if (!exact()) {
+        const uint64_t mine = received_;
+        *this = older;
+        received_ += mine;
+        moved_ = false;
+        return;
+    }
+    if (!older.exact())
+        return;  // nothing exact to go on from: this one's count stands alone
+    // This one took markers of its own before the move was known. Its figures go on from
+    // older's as if older had taken them: its first marker either continues older's count
+    // (the frames written between older's last marker and it are expected, whichever address
+    // brought them) or starts a new one (older's figures of now go into the totals).
+    if (first_session_ == older.session_) {
+        const auto ahead = static_cast<int32_t>(first_written_ - static_cast<uint32_t>(older.written_));
+        expected_done_ = expected_done_ - before_first_ + older.expected() +
+                         static_cast<uint64_t>(static_cast<int64_t>(ahead));
+    } else {
+        expected_done_ += older.expected_now();
+        sessions_++;
+    }
+    received_done_ += older.received_now();
+    sessions_ += older.sessions_;
+    markers_ += older.markers_;
+    markers_late_ += older.markers_late_;
+    last_marker_at_ = std::max(last_marker_at_, older.last_marker_at_);
 }
 
 void LinkAccount::take_marker(const CountMarker& marker, TimePoint arrival) {
@@ -86,8 +106,13 @@ void LinkAccount::take_marker(const CountMarker& marker, TimePoint arrival) {
         // from here.
         expected_done_ = expected_now();
         received_done_ = received_now();
-        if (markers_ != 0)
+        if (markers_ != 0) {
             sessions_++;
+        } else {
+            first_session_ = marker.session;
+            first_written_ = marker.written;
+            before_first_ = received_;
+        }
         session_ = marker.session;
         written_ = session_written_ = marker.written;
         at_marker_ = session_received_ = received_;

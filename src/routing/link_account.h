@@ -90,8 +90,10 @@ public:
     /// A count marker came in at `arrival` (it is one of the frames the far side counts).
     void take_marker(const CountMarker& marker, TimePoint arrival);
     /// This link carries on `older`'s (a UDP peer whose NAT gave it a new port): what `older`
-    /// counted goes on here, the frames this one took so far after it, and `older` is marked
-    /// moved. Nothing is taken when this one has had a marker of its own.
+    /// counted goes on here, followed by what this one counted so far (its frames, and the
+    /// markers it took while the move was being judged: the far side's count, if the same,
+    /// goes on across the move, so what was lost in it is counted), and `older` is marked
+    /// moved.
     void continue_from(LinkAccount& older);
     /// Whether another link carries this one's account on (continue_from): its figures are
     /// that one's, not to be summed with them.
@@ -135,6 +137,9 @@ private:
     uint64_t at_marker_ = 0;         // received_ at the last marker
     uint64_t expected_done_ = 0;     // of the sessions before this one
     uint64_t received_done_ = 0;
+    uint32_t first_session_ = 0;     // the first marker's session and count
+    uint32_t first_written_ = 0;
+    uint64_t before_first_ = 0;      // received_ at the first marker
     TimePoint last_marker_at_{};
     bool peer_standby_ = false;
     bool moved_ = false;

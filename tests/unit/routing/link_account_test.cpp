@@ -185,5 +185,66 @@ TEST(LinkAccount, APeerAtANewPortGoesOnWithTheOldOnesCount) {
     EXPECT_EQ(0u, moved.sessions());
 }
 
+// What the old and the new address brought, fed to one account as one link would have had it:
+// the figures of a move judged late (markers taken at the new address meanwhile) must be these.
+struct Move {
+    LinkAccount old, fresh, one;
+    void in_old(int n) { for (int i = 0; i < n; i++) old.frame_in(), one.frame_in(); }
+    void in_fresh(int n) { for (int i = 0; i < n; i++) fresh.frame_in(), one.frame_in(); }
+    void marker_old(CountMarker m, int ms) { old.take_marker(m, at(ms)), one.take_marker(m, at(ms)); }
+    void marker_fresh(CountMarker m, int ms) {
+        fresh.take_marker(m, at(ms)), one.take_marker(m, at(ms));
+    }
+    void expect_one() const {
+        EXPECT_EQ(one.expected(), fresh.expected());
+        EXPECT_EQ(one.received(), fresh.received());
+        EXPECT_EQ(one.expected_now(), fresh.expected_now());
+        EXPECT_EQ(one.received_now(), fresh.received_now());
+        EXPECT_EQ(one.markers(), fresh.markers());
+        EXPECT_EQ(one.sessions(), fresh.sessions());
+        EXPECT_EQ(one.last_marker(), fresh.last_marker());
+    }
+};
+
+TEST(LinkAccount, AMoveJudgedAfterTheNewAddressTookMarkersIsOneCount) {
+    // An unsigned peer's move is judged over 2 s, and a first datagram may hold a marker: the
+    // new address has taken markers of the same count by then, and the frames lost in the move
+    // (between the old address's last marker and the new one's first) are the link's loss.
+    Move m;
+    m.marker_old({50, 4, false}, 0);
+    m.in_old(9);
+    m.marker_old({50 + 1 + 9 + 2, 4, false}, 1000);  // 2 lost
+    m.in_old(4);
+    m.in_fresh(3);
+    m.marker_fresh({62 + 1 + 4 + 2 + 3, 4, true}, 2000);  // 2 lost in the move
+    m.in_fresh(7);
+    m.marker_fresh({72 + 1 + 7 + 1, 4, true}, 3000);  // 1 lost
+    m.in_fresh(5);
+    m.fresh.continue_from(m.old);
+    EXPECT_TRUE(m.old.moved());
+    EXPECT_FALSE(m.fresh.moved());
+    m.expect_one();
+    EXPECT_EQ(5, m.fresh.lost());
+    EXPECT_TRUE(m.fresh.peer_standby());  // the newest marker's word
+    m.marker_fresh({81 + 1 + 5, 4, false}, 4000);  // and it goes on as one
+    m.expect_one();
+}
+
+TEST(LinkAccount, AMoveAcrossARestartOfTheFarSidesCountIsOneCount) {
+    Move m;
+    m.marker_old({10, 1, false}, 0);
+    m.in_old(8);
+    m.marker_old({20, 1, false}, 1000);  // 1 lost
+    m.in_old(2);
+    m.in_fresh(4);
+    m.marker_fresh({3, 2, false}, 2000);  // its link restarted: a new count
+    m.in_fresh(6);
+    m.marker_fresh({3 + 1 + 6 + 3, 2, false}, 3000);  // 3 lost
+    m.fresh.continue_from(m.old);
+    m.expect_one();
+    EXPECT_EQ(1u, m.fresh.sessions());
+    EXPECT_EQ(4, m.fresh.lost());
+}
+
 }  // namespace
 }  // namespace mavbond
