@@ -186,13 +186,19 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     int64_t best_pos = kUnknownPos, best_err = INT64_MAX;
     uint32_t best_rec = kNone;
     int options = 0;
+    // A free position's first copy would have come at a time known from the source's rate
+    // only: before it is measured, by time, any copy of the key is nearer (taking a time for
+    // it, one turn of 256 away, put a link's first frames a turn off their copies, and the
+    // bond delivered them twice).
     auto consider = [&](int64_t pos, uint32_t rec, uint64_t t_first, uint32_t first_member,
                         bool copy) {
         if (pos <= after)
             return;
         options++;
         int64_t err;
-        if (by_time)
+        if (by_time && !copy && s.ns_per_frame == 0)
+            err = INT64_MAX - 1;
+        else if (by_time)
             err = abs64(static_cast<int64_t>(a.t - t_first) - (lag(a.member) - lag(first_member)));
         else if (young)
             err = abs64(pos - s.first_pos);  // where the stream began
