@@ -96,11 +96,12 @@ class MAVProxy:
         """The first `count` lines matching `pattern` since `since`; fails after `timeout`."""
         deadline = time.monotonic() + timeout
         while True:
+            expired = time.monotonic() >= deadline  # before the look: a line read meanwhile counts
             found = self.find(pattern, since)
             if len(found) >= count:
                 return found[:count]
             assert self.proc.poll() is None, f"MAVProxy exited: {self.text()[-3000:]}"
-            assert time.monotonic() < deadline, \
+            assert not expired, \
                 f"MAVProxy: no {pattern!r} x{count} within {timeout} s: {self.text()[-3000:]}"
             time.sleep(0.05)
 
