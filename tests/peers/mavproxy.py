@@ -109,11 +109,14 @@ class MAVProxy:
         """The first of several outcomes {name: pattern} to show since `since`, or ("timeout",
         now, None)."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and self.proc.poll() is None:
+        while self.proc.poll() is None:
+            expired = time.monotonic() >= deadline  # before the look, as in wait_for
             hits = [(t, name, m) for name, p in patterns.items() for t, m in self.find(p, since)]
             if hits:
                 t, name, m = min(hits, key=lambda h: h[0])
                 return name, t, m
+            if expired:
+                break
             time.sleep(0.05)
         return "timeout", time.monotonic(), None
 
