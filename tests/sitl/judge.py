@@ -3,10 +3,11 @@ MAVProxy's telemetry log and console and the gateways' own tools.
 
 Frames are followed by content, not by bytes alone: (sysid, compid, msgid, payload) without a
 signature (a signed copy is the same frame) and without the sequence number (the bond numbers
-what it sends, routing/egress_numbering.h). A frame handed to a link is SITL's frame with that
-content sent last before the link took it (the air gateway sends a sample at
-once or, held back by a budget, not at all once a newer one came: a thinned frame never
-leaves), so each of SITL's frames is known to have been carried by the radio, by LTE, by both
+what it sends, routing/egress_numbering.h, but with one number on every copy of a frame). The
+copies of a frame on the two links are known by that number; a frame handed to the links is
+SITL's frame with that content sent last before a link took its first copy (the air gateway
+sends a sample at once or, held back by a budget, not at all once a newer one came: a thinned
+frame never leaves), so each of SITL's frames is known to have been carried by the radio, by LTE, by both
 or by neither, and whether the air gateway handed it to any link at all. Nothing is judged by
 how long anything took; times order events and say what was in flight."""
 from __future__ import annotations
@@ -130,34 +131,59 @@ class Records:
             hops.sort(key=lambda h: h.t_in)
         self.sent = [Sent(i, t, f) for i, (t, f) in enumerate(
             (t, f) for t, f in self.wire["up"] if (tlog.sysid(f), tlog.compid(f)) == VEHICLE)]
-        self.unplaced = {link: self._attribute(link) for link in LINKS}
+        self.unplaced = self._attribute()
 
     def mono(self, wall: float) -> float:
         """A time of time.time() (MAVProxy's log) on the records' clock."""
         return wall - self.wall0 + self.mono0
 
-    def _attribute(self, link: str) -> int:
-        """Gives each of SITL's frames its hop on `link` (up): the frame of that identity SITL
-        sent last before the link took it. Returns the hops of SITL's frames with no such
+    def _attribute(self) -> Dict[str, int]:
+        """Gives each of SITL's frames its hops (up): the copies of one frame (copies()) go to
+        the frame of their content SITL sent last before the first of them was taken, and not
+        given that link's hop yet. Returns, per link, the hops of SITL's frames with no such
         frame (none when the records are whole)."""
         by_id: Dict[tuple, List[int]] = defaultdict(list)
         for s in self.sent:
             by_id[content(s.raw)].append(s.i)
         times = {k: [self.sent[i].t for i in v] for k, v in by_id.items()}
-        unplaced = 0
-        for h in self.hops[(link, "up")]:
-            if (tlog.sysid(h.raw), tlog.compid(h.raw)) != VEHICLE:
-                continue
-            k = content(h.raw)  # the bond numbers what it sends: its own sequence numbers
+        unplaced = {link: 0 for link in LINKS}
+        ours = [h for link in LINKS for h in self.hops[(link, "up")]
+                if (tlog.sysid(h.raw), tlog.compid(h.raw)) == VEHICLE]
+        for frame in copies(ours):
+            k = content(frame[0].raw)
             idx = by_id.get(k, [])
-            j = bisect_right(times.get(k, []), h.t_in + SLACK) - 1
-            while j >= 0 and link in self.sent[idx[j]].hops:
+            j = bisect_right(times.get(k, []), frame[0].t_in + SLACK) - 1
+            while j >= 0 and any(h.link in self.sent[idx[j]].hops for h in frame):
                 j -= 1
-            if j < 0:
-                unplaced += 1
-                continue
-            self.sent[idx[j]].hops[link] = h
+            for h in frame:
+                if j < 0:
+                    unplaced[h.link] += 1
+                else:
+                    self.sent[idx[j]].hops[h.link] = h
         return unplaced
+
+
+def copies(hops: Iterable[Hop]) -> List[List[Hop]]:
+    """Hops grouped into the frames they carried, in the order of their first copy. The bond
+    sends every copy of a frame with one number (routing/egress_numbering.h), so the copies of
+    a frame are hops of one identity, sequence byte included, one per link, within SAME_FRAME
+    of each other. Matched by content and time alone, a constant sample (WIND, SYS_STATUS on
+    the ground) that the radio's queue held for longer than SITL's clock and the link's
+    differ (SLACK) would be given to SITL's next frame of that content, and the next frame's
+    radio copy to this one."""
+    groups: Dict[tuple, List[List[Hop]]] = defaultdict(list)
+    frames: List[List[Hop]] = []
+    for h in sorted(hops, key=lambda h: h.t_in):
+        k = identity(h.raw)
+        for g in reversed(groups[k]):
+            if h.t_in - g[0].t_in <= SAME_FRAME and all(x.link != h.link for x in g):
+                g.append(h)
+                break
+        else:
+            g = [h]
+            groups[k].append(g)
+            frames.append(g)
+    return frames
 
 
 def _frames(data: bytes) -> List[bytes]:
@@ -322,22 +348,10 @@ def bond_truth(records: Records, direction: str, t: float) -> LinkTruth:
     if direction == "up":
         frames = [list(s.hops.values()) for s in records.sent
                   if s.hops and min(h.t_in for h in s.hops.values()) <= t]
-    groups: Dict[tuple, List[List[Hop]]] = defaultdict(list)
-    hops = sorted((h for link in LINKS for h in records.hops[(link, direction)]
-                   if h.t_in <= t and tlog.count_marker(h.raw) is None
-                   and not (direction == "up" and
-                            (tlog.sysid(h.raw), tlog.compid(h.raw)) == VEHICLE)),
-                  key=lambda h: h.t_in)
-    for h in hops:
-        k = identity(h.raw)
-        for g in reversed(groups[k]):
-            if h.t_in - g[0].t_in <= SAME_FRAME and all(x.link != h.link for x in g):
-                g.append(h)
-                break
-        else:
-            g = [h]
-            groups[k].append(g)
-            frames.append(g)
+    frames += copies(h for link in LINKS for h in records.hops[(link, direction)]
+                     if h.t_in <= t and tlog.count_marker(h.raw) is None
+                     and not (direction == "up" and
+                              (tlog.sysid(h.raw), tlog.compid(h.raw)) == VEHICLE))
     handed = lost = flight = 0
     for g in frames:
         if any(x.carried and x.decided <= t for x in g):
