@@ -30,7 +30,8 @@ VEHICLE = (1, 1)                 # ArduCopter SITL
 LINKS = ("radio", "lte")
 DIRECTIONS = ("up", "down")      # up: vehicle -> ground
 SLACK = 0.05                     # s: clocks of different processes, read at different moments
-SAME_FRAME = 2.0                 # s: copies of one frame reach the two links this close at most
+SAME_FRAME = 5.0                 # s: copies of one frame reach the two links this close at most
+                                 # (the radio lagged LTE 4.8 s in a parameter download)
 
 
 def identity(frame: bytes) -> tuple:
@@ -131,58 +132,78 @@ class Records:
             hops.sort(key=lambda h: h.t_in)
         self.sent = [Sent(i, t, f) for i, (t, f) in enumerate(
             (t, f) for t, f in self.wire["up"] if (tlog.sysid(f), tlog.compid(f)) == VEHICLE)]
-        self.unplaced = self._attribute()
+        self.unplaced, self.unmatched = self._attribute()
 
     def mono(self, wall: float) -> float:
         """A time of time.time() (MAVProxy's log) on the records' clock."""
         return wall - self.wall0 + self.mono0
 
-    def _attribute(self) -> Dict[str, int]:
+    def _attribute(self) -> Tuple[Dict[str, int], Dict[str, int]]:
         """Gives each of SITL's frames its hops (up): the copies of one frame (copies()) go to
         the frame of their content SITL sent last before the first of them was taken, and not
-        given that link's hop yet. Returns, per link, the hops of SITL's frames with no such
-        frame (none when the records are whole)."""
+        given that link's hop yet. No slack: the models read one clock, and the wire records a
+        frame before it forwards it, so no copy is taken before its frame was sent. Returns,
+        per link, the hops SITL never sent (more of a content on the link by a time than SITL
+        had sent by then: none when the records are whole), and those left without a frame
+        (copies of a constant sample in a run of them, paired with none, whose frames went to
+        other hops: a rare ambiguity of the matching, not of the records)."""
         by_id: Dict[tuple, List[int]] = defaultdict(list)
         for s in self.sent:
             by_id[content(s.raw)].append(s.i)
         times = {k: [self.sent[i].t for i in v] for k, v in by_id.items()}
-        unplaced = {link: 0 for link in LINKS}
         ours = [h for link in LINKS for h in self.hops[(link, "up")]
                 if (tlog.sysid(h.raw), tlog.compid(h.raw)) == VEHICLE]
+        never_sent = {link: 0 for link in LINKS}
+        seen: Dict[tuple, int] = Counter()
+        for h in sorted(ours, key=lambda h: h.t_in):
+            k = content(h.raw)
+            seen[(h.link, k)] += 1
+            never_sent[h.link] += seen[(h.link, k)] > bisect_right(times.get(k, []), h.t_in)
+        unmatched = {link: 0 for link in LINKS}
         for frame in copies(ours):
             k = content(frame[0].raw)
             idx = by_id.get(k, [])
-            j = bisect_right(times.get(k, []), frame[0].t_in + SLACK) - 1
+            j = bisect_right(times.get(k, []), frame[0].t_in) - 1
             while j >= 0 and any(h.link in self.sent[idx[j]].hops for h in frame):
                 j -= 1
             for h in frame:
                 if j < 0:
-                    unplaced[h.link] += 1
+                    unmatched[h.link] += 1
                 else:
                     self.sent[idx[j]].hops[h.link] = h
-        return unplaced
+        return never_sent, unmatched
 
 
 def copies(hops: Iterable[Hop]) -> List[List[Hop]]:
     """Hops grouped into the frames they carried, in the order of their first copy. The bond
-    sends every copy of a frame with one number (routing/egress_numbering.h), so the copies of
-    a frame are hops of one identity, sequence byte included, one per link, within SAME_FRAME
-    of each other. Matched by content and time alone, a constant sample (WIND, SYS_STATUS on
-    the ground) that the radio's queue held for longer than SITL's clock and the link's
-    differ (SLACK) would be given to SITL's next frame of that content, and the next frame's
-    radio copy to this one."""
-    groups: Dict[tuple, List[List[Hop]]] = defaultdict(list)
+    sends every copy of a frame with one number (routing/egress_numbering.h), so two hops of
+    one identity, sequence byte included, on the two links, within SAME_FRAME of each other
+    are the copies of one frame, when nothing else is: an identity recurs 256 of its source's
+    numbers later (a second and a half of ArduCopter's stream), so where either hop has
+    another of that identity on the other link within SAME_FRAME, each is its own. Matched by
+    content and time alone, a constant sample (WIND, SYS_STATUS on the ground) that the
+    radio's queue held until SITL had sent the next one went to that next one, and the next
+    one's radio copy to it."""
+    by_id: Dict[tuple, Dict[str, List[Hop]]] = defaultdict(lambda: defaultdict(list))
+    for h in hops:
+        by_id[identity(h.raw)][h.link].append(h)
     frames: List[List[Hop]] = []
-    for h in sorted(hops, key=lambda h: h.t_in):
-        k = identity(h.raw)
-        for g in reversed(groups[k]):
-            if h.t_in - g[0].t_in <= SAME_FRAME and all(x.link != h.link for x in g):
-                g.append(h)
-                break
-        else:
-            g = [h]
-            groups[k].append(g)
-            frames.append(g)
+    for links in by_id.values():
+        if len(links) < 2:
+            frames += [[h] for v in links.values() for h in v]
+            continue
+        (a, xs), (b, ys) = links.items()
+        near = lambda h, others: [o for o in others if abs(o.t_in - h.t_in) <= SAME_FRAME]
+        paired = set()
+        for x in xs:
+            c = near(x, ys)
+            if len(c) == 1 and len(near(c[0], xs)) == 1:
+                frames.append([x, c[0]])
+                paired.update((id(x), id(c[0])))
+        frames += [[h] for h in xs + ys if id(h) not in paired]
+    for f in frames:
+        f.sort(key=lambda h: h.t_in)
+    frames.sort(key=lambda f: f[0].t_in)
     return frames
 
 

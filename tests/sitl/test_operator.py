@@ -158,8 +158,8 @@ def test_the_rig_is_sound(runs):
         up = {l: len([h for h in r.hops[(l, "up")]]) for l in J.LINKS}
         lines.append(f"{name}: SITL sent {len(r.sent)} frames "
                      f"({len(r.wire['up'])} on its UART in all), got {len(r.wire['down'])}; "
-                     f"up the radio {up['radio']}, up LTE {up['lte']}; hops not placed "
-                     f"{r.unplaced}; SITL listened on {ports}; link models "
+                     f"up the radio {up['radio']}, up LTE {up['lte']}; hops SITL never sent "
+                     f"{r.unplaced}, copies matched to no frame {r.unmatched}; SITL listened on {ports}; link models "
                      f"{rig.models.final.get('garbage')}")
         lines.append(f"{name}: stalls (conditions, not judged): " + stalls(run))
         if any(r.unplaced.values()):
