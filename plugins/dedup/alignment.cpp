@@ -276,6 +276,16 @@ Dedup::Verdict Dedup::align(const Arrival& a, Lane& lane, uint32_t e, const char
     return v;
 }
 
+bool Dedup::recurs(const Arrival& a, uint32_t e) const {
+    if (e == kNone)
+        return false;
+    const Entry& en = entries_[e];
+    int instances = 0;
+    for (int i = 0; i < en.count; i++)
+        instances += ring_[en.rec[i]].stream == a.stream;
+    return instances > 1;
+}
+
 bool Dedup::unseen_instance(const Arrival& a, uint32_t e) const {
     const Entry& en = entries_[e];
     for (int i = 0; i < en.count; i++) {
@@ -309,18 +319,23 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
     // is none: the step forward, after the link's last frame. And where the bond holds this
     // very frame at the position its step gives, that is where it is, unless its key recurs
     // and the link's silence fits a step of a turn more better (the instance there is the
-    // frame's earlier one). A queued link's burst after a stall moved the head past a sparse
-    // link's next frame: the step is no less plain for it.
+    // frame's earlier one). Bytes the window holds once only are this frame's, however long
+    // the link was silent: the source's own silence (an autopilot's UART that stood still, no
+    // frame on any link) makes a lagging link silent as long without its missing a frame, and
+    // time then put its held copies a turn ahead, where the bond had nothing, and delivered
+    // them again. A queued link's burst after a stall moved the head past a sparse link's
+    // next frame: the step is no less plain for it.
     const int64_t continued = a.link_pos + lane.offset;  // where its step says it is
     const uint32_t held_there = at(a.stream, continued);
+    const uint32_t e = find(a.bond, key);
     const bool this_frame_there =
         held_there != kNone && ring_[held_there].h1 == key.h1 && ring_[held_there].h2 == key.h2 &&
-        !silent_for(lane, s, a.t, std::max<int64_t>(continued - lane.last_pos + kAmbiguousStep, 0));
+        (!recurs(a, e) ||
+         !silent_for(lane, s, a.t, std::max<int64_t>(continued - lane.last_pos + kAmbiguousStep, 0)));
     const bool silent = silent_for(lane, s, a.t, kAmbiguousStep);
     const bool no_repeat = (flags & MAVBOND_STREAM_REPEAT) && held_there == kNone;
     if (!this_frame_there && (silent || s.head - lane.head_then >= kAmbiguousStep ||
                               s.head - continued - lane.behind_head >= kAmbiguousStep || no_repeat)) {
-        uint32_t e = find(a.bond, key);
         if (silent || a.stepped_back || held_there != kNone || (e != kNone && unseen_instance(a, e)))
             return align(a, lane, e, "a step of 128 frames or more",
                          no_repeat ? lane.last_pos : kUnknownPos);
@@ -344,7 +359,7 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         // without a run of frames to show it, or time chose wrong). Placed anew, by identity
         // first.
         const Lane was = lane;
-        Verdict placed = align(a, lane, find(a.bond, key), "another frame holds its position");
+        Verdict placed = align(a, lane, e, "another frame holds its position");
         correct_tentative(a.stream, a.member, was, lane);
         return placed;
     }
@@ -355,7 +370,6 @@ Dedup::Verdict Dedup::decide(const Arrival& a, Key key, uint32_t flags) {
         member_of(a.bond, a.member).beyond_window++;
         window_.late(a.bond, a.t - s.forgotten_t0, a.t);
     }
-    uint32_t e = find(a.bond, key);
     v.entry = e;
     if (e == kNone)
         return v;

@@ -233,6 +233,8 @@ private:
     Verdict decide(const Arrival& a, Key key, uint32_t flags);
     /// Whether the link was silent long enough to miss `frames` frames, at the source's rate.
     bool silent_for(const Lane& lane, const Stream& s, uint64_t t, int64_t frames) const;
+    /// Whether the window holds more than one instance of the key of entry `e` in a's stream.
+    bool recurs(const Arrival& a, uint32_t e) const;
     /// Whether key entry `e` has an instance of the arrival's stream its link has not had.
     bool unseen_instance(const Arrival& a, uint32_t e) const;
     /// A link not aligned (or no longer: `why` it is aligned anew): finds the frame's place,

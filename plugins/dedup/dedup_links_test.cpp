@@ -476,5 +476,39 @@ TEST_F(DedupTest, ALinksFirstFramesOfASourceAreItsCopiesNotFramesATurnAhead) {
     EXPECT_NE(std::string::npos, status().find("\"name\":\"b\",\"passed\":0,")) << status();
 }
 
+TEST_F(DedupTest, ALaggingLinksCopiesAfterTheSourceFellSilentAreCopiesNotFramesATurnAhead) {
+    // What the ground of the operator stage saw on a saturated machine: the radio (b) 100 ms
+    // behind LTE (a), its queue stuck for a while, then the autopilot's UART silent for 0.9 s
+    // (no frame on any link); the radio came back first with the copies it still held, the
+    // first of them frames whose bytes recur (HEARTBEAT, TERRAIN_REPORT: no timestamp). By
+    // the link's silence at the source's rate, a free position a turn of 256 ahead fitted
+    // better than the copy a had brought 1 s before, though the source had sent nothing in
+    // that time; b's copies went to the GCS again until a timestamped frame set it right.
+    ASSERT_TRUE(create("window: 2s"));
+    const uint64_t t = now();
+    auto frame = [](int i) {
+        const uint8_t seq = static_cast<uint8_t>(i);
+        return i >= 373 && i < 378 ? v2(seq, kHeartbeat, heartbeat_payload())
+                                   : v2(seq, kAttitude, attitude_payload(10000u + 5u * i));
+    };
+    auto at = [t](int i) { return t + static_cast<uint64_t>(i) * 5 * kMs; };  // 200 frames/s
+    for (int i = 0; i < 400; i++) {
+        EXPECT_EQ(MAVBOND_PASS, feed(*a_, frame(i), at(i))) << i;
+        if (i >= 20 && i - 20 < 373) {
+            EXPECT_EQ(MAVBOND_DROP, feed(*b_, frame(i - 20), at(i))) << i;
+        }
+    }
+    // The source silent from frame 400 on; b's stuck queue lets go 0.9 s later.
+    const uint64_t back = at(400) + 900 * kMs;
+    for (int i = 373; i < 400; i++)
+        EXPECT_EQ(MAVBOND_DROP, feed(*b_, frame(i), back + static_cast<uint64_t>(i - 373) * kMs)) << i;
+    for (int i = 400; i < 440; i++) {
+        const uint64_t when = back + 50 * kMs + static_cast<uint64_t>(i - 400) * 5 * kMs;
+        EXPECT_EQ(MAVBOND_PASS, feed(*a_, frame(i), when)) << i;
+        EXPECT_EQ(MAVBOND_DROP, feed(*b_, frame(i), when + 100 * kMs)) << i;
+    }
+    EXPECT_NE(std::string::npos, status().find("\"name\":\"b\",\"passed\":0,")) << status();
+}
+
 }  // namespace
 }  // namespace mavbond
