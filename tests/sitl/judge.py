@@ -7,9 +7,9 @@ what it sends, routing/egress_numbering.h, but with one number on every copy of 
 copies of a frame on the two links are known by that number; a frame handed to the links is
 SITL's frame with that content sent last before a link took its first copy (the air gateway
 sends a sample at once or, held back by a budget, not at all once a newer one came: a thinned
-frame never leaves), so each of SITL's frames is known to have been carried by the radio, by LTE, by both
-or by neither, and whether the air gateway handed it to any link at all. Nothing is judged by
-how long anything took; times order events and say what was in flight."""
+frame never leaves), so each of SITL's frames is known to have been carried by the radio, by
+LTE, by both or by neither, and whether the air gateway handed it to any link at all. Nothing
+is judged by how long anything took; times order events and say what was in flight."""
 from __future__ import annotations
 
 import json
@@ -187,13 +187,15 @@ def copies(hops: Iterable[Hop]) -> List[List[Hop]]:
     by_id: Dict[tuple, Dict[str, List[Hop]]] = defaultdict(lambda: defaultdict(list))
     for h in hops:
         by_id[identity(h.raw)][h.link].append(h)
+    def near(h: Hop, others: List[Hop]) -> List[Hop]:
+        return [o for o in others if abs(o.t_in - h.t_in) <= SAME_FRAME]
+
     frames: List[List[Hop]] = []
     for links in by_id.values():
         if len(links) < 2:
             frames += [[h] for v in links.values() for h in v]
             continue
-        (a, xs), (b, ys) = links.items()
-        near = lambda h, others: [o for o in others if abs(o.t_in - h.t_in) <= SAME_FRAME]
+        xs, ys = links.values()
         paired = set()
         for x in xs:
             c = near(x, ys)
