@@ -306,7 +306,8 @@ void Dedup::describe(uint32_t bond, JsonOut& out) {
                 st.peer_resend_announced ? "" : " (taken as this side's until it says)");
     if (need.late_ns > 0)
         out.raw(", copies come up to %.2fs after the first", static_cast<double>(need.late_ns) / kSecond);
-    out.raw("; longer while the links bring copies later, up to %.0fs (logged); key %s",
+    out.raw("; longer while the links bring copies later, and for a link behind what it has not "
+            "had, up to %.0fs (logged); key %s",
             static_cast<double>(std::max(window_.floor(), Window::kMaxWindow)) / kSecond,
             kKeyNames[static_cast<int>(key_)]);
 }

@@ -16,7 +16,9 @@
 // bytes on every link. src/mavlink/bond_signing.h.)
 //
 // A copy is known for one only while its first copy is remembered: how long that is follows
-// what the links really do (window.h), the user's `window` being the least.
+// what the links really do (window.h), the user's `window` being the least, and what a link
+// behind has not had yet is kept for it past that (awaited()): its first copy later than the
+// window is still known.
 //
 // Time only chooses what identity cannot, and then by the kernel's receive time: which of
 // several instances of a recurring key a link's first frame of a source belongs to, and where
@@ -281,6 +283,11 @@ private:
     uint32_t add_instance(uint32_t e, const Record& r);
     void remove_instance(uint32_t e, uint8_t slot);
     void pop_front(bool early, uint64_t now);
+    /// Whether a link of the bond that has not had record `r` yet had its stream's frames up
+    /// to before it, and was heard within the longest window: a link behind, whose queue may
+    /// still bring r's copy (a radio that stood still for longer than the window, holding
+    /// what it had), not one that lost it. Kept until then, that copy is known for one.
+    bool awaited(const Record& r, uint64_t now) const;
     void expire(uint64_t now);
 
     Member& member_of(uint32_t bond, uint32_t member) { return members_[bond * kMaxMembers + member]; }

@@ -510,5 +510,35 @@ TEST_F(DedupTest, ALaggingLinksCopiesAfterTheSourceFellSilentAreCopiesNotFramesA
     EXPECT_NE(std::string::npos, status().find("\"name\":\"b\",\"passed\":0,")) << status();
 }
 
+TEST_F(DedupTest, ARadioBackFromAStallLongerThanTheWindowBringsCopiesNotFramesAgain) {
+    // What the ground of the operator stage saw on a saturated machine: the radio (b) 300 ms
+    // behind LTE (a), then its model stood still for 3.5 s, holding the frames in its queue,
+    // and let them go in a burst. The first of them came 3.5 s after LTE's copies, when the
+    // window (2 s) had forgotten those: the constant samples among them (no timestamp for
+    // drop_stale to judge) went to the GCS again, 43 in one run.
+    ASSERT_TRUE(create("window: 2s"));
+    constexpr int kCount = 2000, kStall = 1000;  // 100 frames/s; the radio stalls at 10 s
+    std::vector<Bytes> frames;
+    for (int i = 0; i < kCount; i++) {
+        const auto seq = static_cast<uint8_t>(i);
+        frames.push_back(i % 10 == 0 ? v2(seq, 1, Bytes(31, 5))  // SYS_STATUS, constant
+                                     : v2(seq, kAttitude, attitude_payload(10u * i)));
+    }
+    const uint64_t start = now();
+    auto arrivals = over_link(0, kCount, start, 10 * kMs, [](int) { return 60 * kMs; });
+    auto radio = over_link(1, kCount, start, 10 * kMs, [](int i) -> uint64_t {
+        // Stalled from frame kStall, then a burst at 2 ms a frame until it has caught up.
+        const int64_t burst = 13'500 * int64_t{kMs} + (i - kStall) * 2 * int64_t{kMs} - i * 10 * int64_t{kMs};
+        return i < kStall ? 300 * kMs : static_cast<uint64_t>(std::max<int64_t>(300 * kMs, burst));
+    });
+    arrivals.insert(arrivals.end(), radio.begin(), radio.end());
+    in_time_order(arrivals);
+    Outcome o = run(frames, arrivals, {a_, b_},
+                    [this](const mavbond_link& l, const Bytes& f, uint64_t at) { return feed(l, f, at); });
+    EXPECT_EQ(0, o.legit_dropped);
+    EXPECT_EQ(0, o.duplicates_passed);
+    EXPECT_EQ(0, o.wrong_verdicts);
+}
+
 }  // namespace
 }  // namespace mavbond

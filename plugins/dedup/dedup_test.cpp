@@ -129,22 +129,37 @@ TEST_F(DedupTest, FrameKeyKeepsSequenceApart) {
     EXPECT_EQ(MAVBOND_PASS, feed(*b_, v2(200, kAttitude, p)));
 }
 
-TEST_F(DedupTest, CopyAfterTheWindowPasses) {
+TEST_F(DedupTest, ACopyLaterThanTheWindowIsKnownWhileItsLinkIsBehind) {
     ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
     Bytes f = v2(1, kAttitude, attitude_payload(1000));
     uint64_t t = now();
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
     EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 500 * kMs));  // the window's last instant
-    // That copy came 500 ms late: the window is twice that and a margin now (1.25 s). A copy
-    // later than that passes.
+    // That copy came 500 ms late: the window is twice that and a margin now (1.25 s).
     EXPECT_NE(std::string::npos, status().find("\"window_ms\":1250.0,\"window_floor_ms\":500.0"))
         << status();
+    // b has had nothing since f: it is behind, and g is kept for it past the window. Its copy
+    // 1.25 s later is known, and the window grows to cover such a copy from now on.
     Bytes g = v2(2, kAttitude, attitude_payload(1001));
     EXPECT_EQ(MAVBOND_PASS, feed(*a_, g, t + 1000 * kMs));
-    EXPECT_EQ(MAVBOND_PASS, feed(*b_, g, t + 2251 * kMs));
-    // Counted, and the window grows to cover such a copy from now on.
-    EXPECT_NE(std::string::npos, status().find("\"beyond_window\":1,")) << status();
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, g, t + 2251 * kMs));
+    EXPECT_NE(std::string::npos, status().find("\"beyond_window\":0,")) << status();
     EXPECT_NE(std::string::npos, status().find("\"window_ms\":2752.0")) << status();
+}
+
+TEST_F(DedupTest, ACopyLaterThanTheLongestWindowPasses) {
+    // Beyond 15 s a copy is an outage's backlog, not a link's delay: nothing is kept for it.
+    ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
+    Bytes f = v2(1, kAttitude, attitude_payload(1000));
+    uint64_t t = now();
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, f, t));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, f, t + 100 * kMs));
+    Bytes g = v2(2, kAttitude, attitude_payload(1001));
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, g, t + 1000 * kMs));
+    EXPECT_EQ(MAVBOND_PASS, feed(*b_, g, t + 16'001 * kMs));
+    // Counted, and the window grows to its longest.
+    EXPECT_NE(std::string::npos, status().find("\"beyond_window\":1,")) << status();
+    EXPECT_NE(std::string::npos, status().find("\"window_ms\":15000.0")) << status();
 }
 
 TEST_F(DedupTest, WindowZeroDisablesDedup) {

@@ -48,10 +48,11 @@ TEST_F(DedupTest, TheWindowFollowsALinkFallingBehind) {
     EXPECT_TRUE(told);
 }
 
-TEST_F(DedupTest, ACopyBeyondTheWindowGrowsIt) {
+TEST_F(DedupTest, ALinkSteppingFurtherBehindThanTheWindowLosesNoCopyAndGrowsIt) {
     // b is 100 ms behind a for 5 s, then 1 s behind (a radio's queue after a burst): its first
-    // copies come after the 500 ms window forgot their frames and pass, counted; the window
-    // grows at the first of them, and no later copy passes.
+    // copies come after the 500 ms window would have forgotten their frames, but b is behind
+    // (it has not had them), so they are kept for it, and known. The window grows at the
+    // first of them.
     ASSERT_TRUE(create("window: 500ms\ndrop_stale: false"));
     const int count = 1500;
     const uint64_t period = 20 * kMs;
@@ -68,16 +69,10 @@ TEST_F(DedupTest, ACopyBeyondTheWindowGrowsIt) {
             passed_late.push_back(a.source);
     }
     std::string s = status();
-    std::printf("a step to 1 s behind: %zu copies passed (frames %d..%d)\n%s\n", passed_late.size(),
-                passed_late.empty() ? -1 : passed_late.front(),
-                passed_late.empty() ? -1 : passed_late.back(), s.c_str());
-    // The frames whose first copies came between 1 s and 500 ms before b's first late copy.
-    ASSERT_FALSE(passed_late.empty());
-    EXPECT_LE(passed_late.size(), 30u);
-    EXPECT_LT(passed_late.back(), 300);
-    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":" + std::to_string(passed_late.size())))
-        << s;
-    EXPECT_NE(std::string::npos, s.find("\"beyond_window\":" + std::to_string(passed_late.size()))) << s;
+    EXPECT_TRUE(passed_late.empty()) << passed_late.size() << " copies passed, the first frame "
+                                     << passed_late.front() << "\n" << s;
+    EXPECT_NE(std::string::npos, s.find("\"name\":\"b\",\"passed\":0,")) << s;
+    EXPECT_NE(std::string::npos, s.find("\"beyond_window\":0")) << s;
     EXPECT_NE(std::string::npos, s.find("\"window_ms\":2240.0")) << s;  // twice the 0.995 s seen, a margin
 }
 

@@ -3,6 +3,7 @@
 // create; nothing per frame.
 #include "dedup.h"
 
+#include <algorithm>
 #include <cinttypes>
 #include <cstdio>
 
@@ -97,11 +98,30 @@ void Dedup::pop_front(bool early, uint64_t now) {
     ring_count_--;
 }
 
+bool Dedup::awaited(const Record& r, uint64_t now) const {
+    const uint64_t longest = std::max(Window::kMaxWindow, window_.floor());
+    if (r.pos == kUnknownPos || now - r.t0 > longest)
+        return false;
+    const uint32_t bond = static_cast<uint32_t>(streams_[r.stream].key >> 16) - 1;
+    for (uint32_t m = 0; m < kMaxMembers; m++) {
+        const Member& x = members_[bond * kMaxMembers + m];
+        const Lane& lane = lanes_[size_t{r.stream} * kMaxMembers + m];
+        if ((r.seen >> m & 1) || x.link_id == kNone || lane.generation != x.generation ||
+            !lane.aligned)
+            continue;
+        if (lane.last_pos < r.pos && now - lane.last_t <= longest)
+            return true;
+    }
+    return false;
+}
+
 void Dedup::expire(uint64_t now) {
-    // The ring is in arrival order, so expiry stops at the first instance in the window.
+    // The ring is in arrival order, so expiry stops at the first instance in the window, or
+    // one a link behind may still bring a copy of.
     while (ring_count_ > 0) {
         const Record& r = ring_[ring_head_];
-        if ((r.entry != kNone || r.pos != kUnknownPos) && now - r.t0 <= window_.ns())
+        if ((r.entry != kNone || r.pos != kUnknownPos) &&
+            (now - r.t0 <= window_.ns() || awaited(r, now)))
             break;
         pop_front(false, now);
     }

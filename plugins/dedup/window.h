@@ -12,7 +12,9 @@
 // It grows at once (in the frame that shows the lateness); it comes down once the lateness
 // that made it grow has not been seen for one to two kEpoch. Never beyond kMaxWindow (or the
 // user's window if longer): a copy later than that is an outage's backlog, not a link's delay,
-// and passes (drop_stale still catches the samples among it). What it costs is memory, and
+// and passes (drop_stale still catches the samples among it). The window is what is known of
+// the links' lateness; a lateness not seen yet (a queue that stood still longer than ever) is
+// covered by expiry itself, which keeps what a link behind has not had (Dedup::awaited). What it costs is memory, and
 // that is bounded by max_entries; matching by identity makes a long window no less exact.
 #pragma once
 

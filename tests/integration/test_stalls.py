@@ -63,6 +63,15 @@ SCENARIOS = [
         "radio": {"loss": "1%", "delay": "30ms", "jitter": "10ms", **RADIO_57600},
         "lte": {"loss": "1%", "delay": "60ms", "jitter": "30ms", "jitter_dist": "normal",
                 "reorder": True}}),
+    # The radio's queue stands still for longer than the window (its model given no CPU on a
+    # saturated machine, in the operator stage): it then brings copies LTE delivered 4.5 s
+    # before, and a lagging link's copies are copies however late (the constant samples
+    # among them, which drop_stale cannot judge, reached the GCS again).
+    Scenario("radio_stood_still", {
+        "radio": {"loss": "1%", "delay": "30ms", "jitter": "10ms", "stall": ["5s+4.5s"],
+                  **RADIO_57600},
+        "lte": {"loss": "1%", "delay": "60ms", "jitter": "15ms"}},
+             seconds=14, dedup={"window": "2s"}),
 ]
 
 

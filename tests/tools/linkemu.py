@@ -48,6 +48,9 @@ datagram, in this order:
                 than the spacing compresses the tail of the distribution instead of reordering.
                 `--reorder` lets each datagram keep its own sampled time (jitter may reorder,
                 but only as much as the jitter implies).
+  7. stall      `--stall START+LEN` (repeatable): nothing leaves from START for LEN, as when a
+                radio's queue stands still (its process given no CPU, a modem's buffer held): a
+                datagram due in that time leaves at its end instead, in order, nothing lost.
 
 Scheduled sends live in one heap driven by a select() loop with timeouts (select() has
 microsecond resolution); no thread per datagram. Time is CLOCK_MONOTONIC (time.monotonic()).
@@ -237,6 +240,7 @@ class DirConfig:
     jitter: float = 0.0
     jitter_dist: str = "uniform"
     outage: List[Tuple[float, float]] = field(default_factory=list)
+    stall: List[Tuple[float, float]] = field(default_factory=list)
     corrupt: float = 0.0
     rate: Optional[float] = None
     overhead: int = 0
@@ -271,6 +275,9 @@ PARAMS: Dict[str, Tuple[Callable, str, str]] = {
                     "uniform in [-J,+J] (default) or normal with sigma J, clipped at 3J"),
     "outage": (_parse_outages, "START+LEN",
                "link down from START for LEN (s since emulator start), repeatable, e.g. 10s+15s"),
+    "stall": (_parse_outages, "START+LEN",
+              "nothing leaves from START for LEN; what is due meanwhile leaves at its end, "
+              "repeatable, e.g. 4s+3.5s"),
     "corrupt": (parse_prob, "P", "probability that a datagram gets one random bit flipped"),
     "rate": (parse_rate, "BITS/S", "bandwidth cap in bit/s incl. --overhead, e.g. 57600"),
     "overhead": (parse_int, "BYTES", "bytes added to each datagram for --rate (default 0)"),
@@ -403,6 +410,10 @@ class _Direction:
                 t += (2.0 * j1 - 1.0) * cfg.jitter
             if t < now:
                 t = now
+        for start, length in cfg.stall:
+            due_rel = rel + (t - now)
+            if start <= due_rel < start + length:
+                t += start + length - due_rel
         if not cfg.reorder:
             if t < self.last_due:
                 t = self.last_due
@@ -909,7 +920,7 @@ def build_parser() -> argparse.ArgumentParser:
             if name == "reorder":
                 p.add_argument(f"--{prefix}{flag}", dest=dest, action="store_const", const=True,
                                default=None, help=h)
-            elif name == "outage":
+            elif name in ("outage", "stall"):
                 p.add_argument(f"--{prefix}{flag}", dest=dest, action="append", metavar=metavar,
                                help=h)
             else:
