@@ -16,7 +16,7 @@ DEB_PACKAGES+=(${TEST_DEB_PACKAGES[@]+"${TEST_DEB_PACKAGES[@]}"})
 # library) and MAVProxy are the independent MAVLink stacks of tests/peers.
 PY_PACKAGES=(pymavlink==2.4.50 mmh3==5.1.0 pytest==8.3.4 matplotlib==3.10.8 prometheus-client==0.26.0 mavsdk==4.1.0 MAVProxy==1.8.75)
 
-say() { printf '==> %s\n' "$*" >&2; }
+say() { printf '==> %s [%s]\n' "$*" "$(date +%T)" >&2; }
 
 install_debian_packages() {
     local missing=()
