@@ -167,6 +167,7 @@ private:
     std::vector<std::function<void()>> after_io_hooks_;
     uint64_t round_ = 0;
     bool prompt_round_ = false;
+    bool timers_waited_ = false;  // the last round woke late and left its timers to this one
     std::vector<std::function<void()>> deferred_;
     TimePoint now_ = Clock::now();
     TimePoint polled_after_ = now_;

@@ -14,6 +14,7 @@ GCS's STATUSTEXT."""
 from __future__ import annotations
 
 import re
+import signal
 import threading
 import time
 from datetime import datetime
@@ -159,3 +160,55 @@ def test_a_paused_stream_is_no_silence_and_a_cut_is_one_lost_one_back(lab, tmp_p
     assert len(found) == 1 and "the far side's report on lte" in found[0], found
     for g in (air, ground):
         assert len([l for l in g.log().splitlines() if CHANGE.search(l)]) == 4, g.log()
+
+
+FROZEN_AT, FROZEN_FOR = 6.0, 5.0                  # s on the emulator's clock
+
+
+def test_a_gateway_frozen_longer_than_a_silence_finds_no_link_lost_on_waking(lab, tmp_path):
+    """The air gateway stopped (SIGSTOP) for 5 s while both links carry everything: what came
+    meanwhile waits in its sockets, so on waking (SIGCONT) it has no link to call lost (the
+    kernel held it so for 5.8 s in the operator stage, and it called LTE lost, then back 0.1 s
+    later). The ground, which heard nothing from it for 5 s, rightly may: it is not judged."""
+    p = {k: free_port() for k in ("ap", "gcs", "g_radio", "g_lte", "e_radio", "e_lte")}
+    events = {"link_events": "{silent_after: 1s}"}
+    ground = lab.gateway([udp_server("radio", p["g_radio"], bond="vehicle"),
+                          udp_server("lte", p["g_lte"], bond="vehicle", cost="metered"),
+                          udp_server("gcs", p["gcs"])],
+                         bonds=[{"name": "vehicle", "tx": "broadcast"}],
+                         filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="ground",
+                         **events)
+    emu = lab.emu_group([dict(name="radio", listen_port=p["e_radio"], forward_ports=p["g_radio"],
+                              seed=63, delay="20ms"),
+                         dict(name="lte", listen_port=p["e_lte"], forward_ports=p["g_lte"],
+                              seed=64, delay="60ms", jitter="15ms")],
+                        name="frozen")
+    air_sock = tmp_path / "air.sock"
+    air = lab.gateway([udp_server("ap", p["ap"]),
+                       udp_client("radio", p["e_radio"], bond="vehicle"),
+                       udp_client("lte", p["e_lte"], bond="vehicle", cost="metered")],
+                      bonds=[{"name": "vehicle", "tx": "broadcast", "resend": "1s"}],
+                      filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="air",
+                      status_socket=str(air_sock), **events)
+    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
+    frames = [(t_us / 1e6, f) for t_us, f in synth.ardupilot_stream(20.0, seed=13)]
+    sender = Sender(lab.sock(), (HOST, p["ap"]), frames, emu.t_start + STREAM_START)
+    sender.start()
+    try:
+        time.sleep(max(0.0, emu.t_start + FROZEN_AT - time.monotonic()))
+        air.proc.send_signal(signal.SIGSTOP)
+        time.sleep(FROZEN_FOR)
+        air.proc.send_signal(signal.SIGCONT)
+        time.sleep(4.0)
+        loop = status_document(air_sock)["event_loop"]
+    finally:
+        sender.stop()
+    own = [l for l in air.log().splitlines() if CHANGE.search(l) and " lost " in l
+           and "as the far side reports" not in l]
+    far = [l for l in ground.log().splitlines() if CHANGE.search(l)]
+    print(f"\n[frozen] the air gateway stopped {FROZEN_FOR:.0f} s: it woke "
+          f"{loop['latest_wakeup_ms']} ms late; links it called lost on its own: {own}; the "
+          f"ground's changes (true: it heard nothing): {len(far)}")
+    # The daemon's own clock saw the freeze, and it called nothing lost for it.
+    assert loop["latest_wakeup_ms"] >= 1000 * FROZEN_FOR - 200, loop
+    assert own == [], own
