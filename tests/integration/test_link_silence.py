@@ -85,7 +85,11 @@ def mavbond_texts(rx: Receiver):
     return out
 
 
-def test_a_paused_stream_is_no_silence_and_a_cut_is_one_lost_one_back(lab, tmp_path):
+def pair(lab, tmp_path, name, seeds, radio=None):
+    """The shipped pair's shape: a ground gateway (GCS port, radio and metered LTE links) and
+    an air gateway (the autopilot's port), the links emulated (`radio`: the radio's extra
+    options), link events on both sides. Returns (ports, ground, emulators, air, the air's
+    status socket, the GCS)."""
     p = {k: free_port() for k in ("ap", "gcs", "g_radio", "g_lte", "e_radio", "e_lte")}
     events = {"link_events": "{silent_after: 1s}"}
     ground = lab.gateway([udp_server("radio", p["g_radio"], bond="vehicle"),
@@ -95,10 +99,10 @@ def test_a_paused_stream_is_no_silence_and_a_cut_is_one_lost_one_back(lab, tmp_p
                          filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="ground",
                          status_socket=str(tmp_path / "ground.sock"), **events)
     emu = lab.emu_group([dict(name="radio", listen_port=p["e_radio"], forward_ports=p["g_radio"],
-                              seed=61, delay="20ms", outage=f"{CUT_AT}s+{CUT_FOR}s"),
+                              seed=seeds[0], delay="20ms", **(radio or {})),
                          dict(name="lte", listen_port=p["e_lte"], forward_ports=p["g_lte"],
-                              seed=62, delay="60ms", jitter="15ms")],
-                        name="silence")
+                              seed=seeds[1], delay="60ms", jitter="15ms")],
+                        name=name)
     air_sock = tmp_path / "air.sock"
     air = lab.gateway([udp_server("ap", p["ap"]),
                        udp_client("radio", p["e_radio"], bond="vehicle"),
@@ -106,7 +110,12 @@ def test_a_paused_stream_is_no_silence_and_a_cut_is_one_lost_one_back(lab, tmp_p
                       bonds=[{"name": "vehicle", "tx": "broadcast", "resend": "1s"}],
                       filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="air",
                       status_socket=str(air_sock), **events)
-    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
+    return p, ground, emu, air, air_sock, Receiver(lab.sock(), hello_port=p["gcs"])
+
+
+def test_a_paused_stream_is_no_silence_and_a_cut_is_one_lost_one_back(lab, tmp_path):
+    p, ground, emu, air, air_sock, gcs = pair(lab, tmp_path, "silence", (61, 62),
+                                              {"outage": f"{CUT_AT}s+{CUT_FOR}s"})
     frames = paused_stream(seed=12)
     sender = Sender(lab.sock(), (HOST, p["ap"]), frames, emu.t_start + STREAM_START)
     sender.start()
@@ -170,27 +179,7 @@ def test_a_gateway_frozen_longer_than_a_silence_finds_no_link_lost_on_waking(lab
     meanwhile waits in its sockets, so on waking (SIGCONT) it has no link to call lost (the
     kernel held it so for 5.8 s in the operator stage, and it called LTE lost, then back 0.1 s
     later). The ground, which heard nothing from it for 5 s, rightly may: it is not judged."""
-    p = {k: free_port() for k in ("ap", "gcs", "g_radio", "g_lte", "e_radio", "e_lte")}
-    events = {"link_events": "{silent_after: 1s}"}
-    ground = lab.gateway([udp_server("radio", p["g_radio"], bond="vehicle"),
-                          udp_server("lte", p["g_lte"], bond="vehicle", cost="metered"),
-                          udp_server("gcs", p["gcs"])],
-                         bonds=[{"name": "vehicle", "tx": "broadcast"}],
-                         filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="ground",
-                         **events)
-    emu = lab.emu_group([dict(name="radio", listen_port=p["e_radio"], forward_ports=p["g_radio"],
-                              seed=63, delay="20ms"),
-                         dict(name="lte", listen_port=p["e_lte"], forward_ports=p["g_lte"],
-                              seed=64, delay="60ms", jitter="15ms")],
-                        name="frozen")
-    air_sock = tmp_path / "air.sock"
-    air = lab.gateway([udp_server("ap", p["ap"]),
-                       udp_client("radio", p["e_radio"], bond="vehicle"),
-                       udp_client("lte", p["e_lte"], bond="vehicle", cost="metered")],
-                      bonds=[{"name": "vehicle", "tx": "broadcast", "resend": "1s"}],
-                      filters=[{"plugin": "dedup", "bonds": ["vehicle"]}], name="air",
-                      status_socket=str(air_sock), **events)
-    gcs = Receiver(lab.sock(), hello_port=p["gcs"])
+    p, ground, emu, air, air_sock, gcs = pair(lab, tmp_path, "frozen", (63, 64))
     frames = [(t_us / 1e6, f) for t_us, f in synth.ardupilot_stream(20.0, seed=13)]
     sender = Sender(lab.sock(), (HOST, p["ap"]), frames, emu.t_start + STREAM_START)
     sender.start()

@@ -459,19 +459,26 @@ def test_jitter_keeps_order_unless_reorder_is_asked(emu_factory):
             assert order == list(range(300))
 
 
-def test_outage_drops_its_span_and_nothing_else(emu_factory):
-    spans = [(0.3, 0.4), (1.0, 0.3)]
-    emu, a, b = emu_factory(seed=1, outage=[f"{s}s+{l}s" for s, l in spans], record_drops=True,
-                            record_sends=True)
-    inside = lambda t, tol=0.0: any(s - tol <= t < s + l + tol for s, l in spans)  # noqa: E731
+def every_2ms_until(emu, a, b, until: float):
+    """One numbered datagram from `a` every 2 ms until the emulator's clock reads `until`;
+    returns (what `b` got, how many were sent, the up direction's counters once settled)."""
     got, n = [], 0
-    # one datagram every 2 ms until well after the last span (by the emulator's clock)
-    while emu.elapsed() < 1.6:
+    while emu.elapsed() < until:
         a.sendto(HDR.pack(n, 0.0), emu.listen_addr)
         n += 1
         time.sleep(0.002)
         drain(b, got)
     c = wait_counters(emu, lambda c: settled(c["up"], n, len(drain(b, got))))["up"]
+    return got, n, c
+
+
+def test_outage_drops_its_span_and_nothing_else(emu_factory):
+    spans = [(0.3, 0.4), (1.0, 0.3)]
+    emu, a, b = emu_factory(seed=1, outage=[f"{s}s+{l}s" for s, l in spans], record_drops=True,
+                            record_sends=True)
+    inside = lambda t, tol=0.0: any(s - tol <= t < s + l + tol for s, l in spans)  # noqa: E731
+    # until well after the last span (by the emulator's clock)
+    got, n, c = every_2ms_until(emu, a, b, 1.6)
     dropped = drop_indices(emu, "outage")
     rec = sends_of(emu)
     arrived = [r["arrived"] for r in rec]
@@ -495,13 +502,7 @@ def test_stall_holds_its_span_and_lets_it_go_in_order(emu_factory):
     start, length = 0.3, 0.4
     emu, a, b = emu_factory(seed=1, delay="10ms", stall=[f"{start}s+{length}s"],
                             record_sends=True)
-    got, n = [], 0
-    while emu.elapsed() < 1.2:
-        a.sendto(HDR.pack(n, 0.0), emu.listen_addr)
-        n += 1
-        time.sleep(0.002)
-        drain(b, got)
-    c = wait_counters(emu, lambda c: settled(c["up"], n, len(drain(b, got))))["up"]
+    got, n, c = every_2ms_until(emu, a, b, 1.2)
     rec = sends_of(emu)
     held = [r for r in rec if start <= r["arrived"] + 0.010 < start + length]
     print(f"\nstall {start}s+{length}s: {n} sent, {len(held)} held, {c['forwarded']} forwarded")

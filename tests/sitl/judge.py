@@ -394,11 +394,123 @@ def in_flight_at(records: Records, t: float, direction: str = "up") -> int:
                                                (tlog.sysid(h.raw), tlog.compid(h.raw)) == VEHICLE))
 
 
+# --- when the rig stood still ------------------------------------------------------------------
+
+STOOD_STILL = 1.0                # s: SITL's UART, or a link holding frames, silent this long
+
+
+def _gaps(times: List[float], at_least: float) -> List[Tuple[float, float]]:
+    times = sorted(times)
+    return [(a, b) for a, b in zip(times, times[1:]) if b - a >= at_least]
+
+
+def _merged(spans: Iterable[Tuple[float, float]]) -> List[Tuple[float, float]]:
+    out: List[Tuple[float, float]] = []
+    for a, b in sorted(spans):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+GATEWAY_STALL = re.compile(r"event loop woke (\d+\.\d+) s later than its next timer")
+
+
+def rig_stalls(records: Records, logs: Iterable[str] = ()) -> List[Tuple[float, float]]:
+    """When the rig stood still, by its own records: SITL's UART silent STOOD_STILL s or more
+    (on a saturated machine the kernel's tty flush worker gets no CPU and every pty of the rig
+    stands still with it, the gateways' radio ports too), a link model that held a frame
+    through that long without delivering any, or a gateway that says (its log) it woke that
+    much late, held by the kernel. None is a product's choice: the air gateway writes what
+    SITL sends, a model delivers what it took, and a gateway held sends nothing."""
+    spans = _gaps([t for t, _ in records.wire["up"]], STOOD_STILL)
+    for log in logs:
+        for line in log.splitlines():
+            m = GATEWAY_STALL.search(line)
+            if m and float(m.group(1)) >= STOOD_STILL:
+                t = records.mono(log_time(line))
+                spans.append((t - float(m.group(1)), t))
+    for hops in records.hops.values():
+        carried = [h for h in hops if h.carried]
+        spans += [(a, b) for a, b in _gaps([h.decided for h in carried], STOOD_STILL)
+                  if any(h.t_in < a and h.decided >= b for h in carried)]
+    return _merged(spans)
+
+
+def silences(records: Records, link: str, direction: str) -> List[Tuple[float, float]]:
+    """Spans in which `link` delivered nothing in `direction` for STOOD_STILL s or more: what
+    its receiving gateway heard of it, whatever the cause."""
+    return _gaps([h.decided for h in records.hops[(link, direction)] if h.carried], STOOD_STILL)
+
+
+# The gateways' words for a direction (src/routing/link_events.h): "downlink" is the vehicle's
+# frames towards the ground station, "uplink" the other way; a link lost both ways says neither.
+EVENT_DIRECTIONS = {"downlink": ("up",), "uplink": ("down",), "": ("up", "down")}
+
+
+class StallEvents:
+    """Which of a run's link changes a gateway logged are the rig's stalls told truly: a link
+    lost while it really delivered nothing that way (a silence of STOOD_STILL s or more,
+    overlapping a stall of the rig, the event within it or a second after), and its return
+    after such a loss. Anything else is the product's."""
+
+    def __init__(self, records: Records, stalls: List[Tuple[float, float]]):
+        self.records, self.stalls = records, stalls
+        self._silences = {(l, d): [(a, b) for a, b in silences(records, l, d)
+                                   if any(s < b and e > a for s, e in stalls)]
+                          for l in LINKS for d in DIRECTIONS}
+
+    def silent(self, link: str, direction: str, t: float) -> bool:
+        dirs = EVENT_DIRECTIONS.get(direction, ())
+        return bool(dirs) and all(any(a <= t <= b + 1.0 for a, b in self._silences[(link, d)])
+                                  for d in dirs)
+
+    def split(self, log: str) -> Tuple[List[Tuple[float, str]], List[Tuple[float, str]]]:
+        """(the rig's, the product's) of a gateway log's changes, each (time, line)."""
+        rig, product = [], []
+        lost: Dict[Tuple[str, str], bool] = {}
+        for line in logged_changes(log):
+            t = self.records.mono(log_time(line))
+            m = LOGGED_EVENT.search(line)
+            if m is None:                       # a bond's switch: in a stall or 5 s after
+                (rig if any(s <= t <= e + 5.0 for s, e in self.stalls) else product).append((t, line))
+                continue
+            link, direction, what = link_of(m.group(1)), m.group(2) or "", m.group(3)
+            key = (link, direction)
+            ok = self.silent(link, direction, t) if what == "lost" else lost.get(key, False)
+            lost[key] = ok if what == "lost" else False
+            (rig if ok else product).append((t, line))
+        return rig, product
+
+
+LOGGED_EVENT = re.compile(r"link event: link (\S+) (?:(downlink|uplink|inbound|outbound) )?(lost|back) ")
+
+
+def logged_event(line: str) -> Optional[Tuple[str, str, str]]:
+    """(endpoint, direction or "", "lost" | "back") of a gateway's logged link event, as
+    link_event() gives a shown one; None for any other line."""
+    m = LOGGED_EVENT.search(line)
+    return (m.group(1), m.group(2) or "", m.group(3)) if m else None
+
+
+def log_time(line: str) -> float:
+    """The time.time() of a gateway's log line ("2026-12-03 08:52:24.930 mavbond: ..."): the
+    daemon writes its local time."""
+    import datetime
+    return datetime.datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S.%f").timestamp()
+
+
 # --- what the operator's tools show ------------------------------------------------------------
 
 def endpoint_of(link: str) -> str:
     """The gateways' endpoint name of a link model."""
     return {"radio": "sik", "lte": "lte"}[link]
+
+
+def link_of(endpoint: str) -> str:
+    """The link model of a gateways' endpoint name (the name itself if none)."""
+    return next((l for l in LINKS if endpoint_of(l) == endpoint), endpoint)
 
 
 def status_link_figures(doc: dict, link: str) -> List[Tuple[str, float]]:
