@@ -212,6 +212,23 @@ TEST_F(DedupTest, MemoryCapForgetsOldestAndNeverDropsOriginals) {
     EXPECT_LE(lines, 4);
 }
 
+TEST_F(DedupTest, WhatIsKeptForALinkBehindAndForgottenForSpaceIsNoEarlyEviction) {
+    // b had the first frame and nothing since: a's later frames are kept for it past the
+    // 500 ms window. When max_entries is reached, those go first, and that is no "memory
+    // full": without b behind they would have expired already.
+    ASSERT_TRUE(create("window: 500ms\nmax_entries: 4\ndrop_stale: false"));
+    const uint64_t t = now();
+    EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(0, kAttitude, attitude_payload(0)), t));
+    EXPECT_EQ(MAVBOND_DROP, feed(*b_, v2(0, kAttitude, attitude_payload(0)), t + 10 * kMs));
+    for (uint8_t i = 1; i <= 10; i++)
+        EXPECT_EQ(MAVBOND_PASS, feed(*a_, v2(i, kAttitude, attitude_payload(i)), t + i * 200 * kMs));
+    std::string s = status();
+    EXPECT_NE(std::string::npos, s.find("\"instances\":4,")) << s;
+    EXPECT_NE(std::string::npos, s.find("\"evicted_early\":0,")) << s;
+    for (const auto& line : host_.logs)
+        EXPECT_EQ(std::string::npos, line.find("memory full")) << line;
+}
+
 TEST_F(DedupTest, HotPathAllocatesNothing) {
     // 100k frames/s over two links, 500 ms window: 50k instances live.
     // Samples here are 1 ms apart in time_boot_ms but 10 us apart on the wire: stale_after

@@ -206,7 +206,9 @@ void Dedup::remember(const Arrival& a, Key key, int64_t pos, uint32_t e) {
     // At the cap the oldest instance overall is forgotten first, which may be this key's last
     // one: look the key up again after making room.
     if (ring_count_ == capacity_) {
-        pop_front(true, a.t);
+        // Early only if still in its window: one past it, kept for a link behind, would have
+        // expired without that.
+        pop_front(a.t - ring_[ring_head_].t0 <= window_.ns(), a.t);
         e = find(a.bond, key);
     }
     if (e == kNone)
