@@ -397,6 +397,8 @@ def in_flight_at(records: Records, t: float, direction: str = "up") -> int:
 # --- when the rig stood still ------------------------------------------------------------------
 
 STOOD_STILL = 1.0                # s: SITL's UART, or a link holding frames, silent this long
+REPORT_LAG = 3.0                 # s: a far side's report of a silence comes this much after it
+                                 # at most (its check, then its report's next turn on LTE)
 
 
 def _gaps(times: List[float], at_least: float) -> List[Tuple[float, float]]:
@@ -461,10 +463,22 @@ class StallEvents:
                                    if any(s < b and e > a for s, e in stalls)]
                           for l in LINKS for d in DIRECTIONS}
 
-    def silent(self, link: str, direction: str, t: float) -> bool:
+    def silent(self, link: str, direction: str, t: float, reported: bool = False) -> bool:
+        """Whether `link` was silent `direction` at `t` (a second after, or REPORT_LAG for
+        what the far side reports: its report comes on another link, after its own check)."""
         dirs = EVENT_DIRECTIONS.get(direction, ())
-        return bool(dirs) and all(any(a <= t <= b + 1.0 for a, b in self._silences[(link, d)])
+        lag = REPORT_LAG if reported else 1.0
+        return bool(dirs) and all(any(a <= t <= b + lag for a, b in self._silences[(link, d)])
                                   for d in dirs)
+
+    def radio_failing(self, t: float) -> bool:
+        """Whether a failover at `t` answers what the radio really did: silent either way
+        then, over a stall of the rig (the standby acts on a failing radio before a link event
+        calls it lost), or dropping frames in the 5 s before (the backlog a stall left
+        overflows its buffer once it runs again)."""
+        return any(a <= t <= b + 1.0 for d in DIRECTIONS for a, b in self._silences[("radio", d)]) \
+            or any(t - 5.0 <= h.decided <= t and not h.carried
+                   for d in DIRECTIONS for h in self.records.hops[("radio", d)])
 
     def split(self, log: str) -> Tuple[List[Tuple[float, str]], List[Tuple[float, str]]]:
         """(the rig's, the product's) of a gateway log's changes, each (time, line)."""
@@ -478,7 +492,8 @@ class StallEvents:
                 continue
             link, direction, what = link_of(m.group(1)), m.group(2) or "", m.group(3)
             key = (link, direction)
-            ok = self.silent(link, direction, t) if what == "lost" else lost.get(key, False)
+            ok = (self.silent(link, direction, t, "as the far side reports" in line)
+                  if what == "lost" else lost.get(key, False))
             lost[key] = ok if what == "lost" else False
             (rig if ok else product).append((t, line))
         return rig, product

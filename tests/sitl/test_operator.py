@@ -284,7 +284,7 @@ def _rig_events(run: Run):
     (judge.StallEvents): {side: (the rig's, the product's)}."""
     stalls = J.rig_stalls(run.records, [d.log() for d in run.rig.gateways.values()])
     events = J.StallEvents(run.records, stalls)
-    return stalls, {side: events.split(d.log()) for side, d in run.rig.gateways.items()}
+    return stalls, events, {side: events.split(d.log()) for side, d in run.rig.gateways.items()}
 
 
 def _told_by_the_rig(t: float, line: str, rig_logged) -> bool:
@@ -315,7 +315,7 @@ def test_one_link_event_per_real_change(runs):
     starts), as the link as a whole (each was cut both ways); beyond those, only what the rig's
     own stalls really did to a link (judge.StallEvents), nothing else."""
     run = runs["session"]
-    stalls, split = _rig_events(run)
+    stalls, events, split = _rig_events(run)
     shown = [(t, l) for s, _ in run.gcs for t, l in J.link_events_shown(s.lines)]
     want = Counter({("sik", "", "lost"): 1, ("sik", "", "back"): 1, ("lte", "", "lost"): 1,
                     ("lte", "", "back"): 1})
@@ -354,7 +354,7 @@ def test_no_link_event_while_healthy(runs):
     while the rig stood still), which is told as it is."""
     lines, wrong = [], []
     for name, run in both(runs):
-        stalls, split = _rig_events(run)
+        stalls, events, split = _rig_events(run)
         spans = run.log.healthy
         inside = lambda t: any(a <= t <= b for a, b in spans)
         healthy_s = sum(b - a for a, b in spans)
@@ -366,15 +366,11 @@ def test_no_link_event_while_healthy(runs):
         told = [(t, x) for t, x in shown + to_gcs + to_sitl if not _told_by_the_rig(t, x, split)]
         logged = {side: [(t, l) for t, l in product if inside(t)]
                   for side, (_, product) in split.items()}
-        # The air side leaves standby for a radio its stall silenced: the rig's when a radio
-        # change of the rig's was logged in the 5 s before.
-        radio_rig = [t for side in split.values() for t, l in side[0]
-                     if (J.logged_event(l) or ("",))[0] == J.endpoint_of("radio")]
+        # Standby leaves for a radio the rig's stall silenced: the rig's then.
         failovers = [(t, l) for d in run.rig.gateways.values() for l in d.log().splitlines()
                      if "metered links active" in l
                      for t in [run.records.mono(J.log_time(l))] if inside(t)]
-        failovers_product = [(t, l) for t, l in failovers
-                             if not any(t - 5.0 <= r <= t + J.SLACK for r in radio_rig)]
+        failovers_product = [(t, l) for t, l in failovers if not events.radio_failing(t)]
         lines.append(f"{name}: {healthy_s:.0f} s healthy ({[(run.t(a), run.t(b)) for a, b in spans]}); "
                      f"MAVProxy showed {len(shown)}, STATUSTEXTs to the GCS {len(to_gcs)}, to "
                      f"SITL {len(to_sitl)}, of them not the rig's stalls {len(told)}; link changes "
