@@ -246,7 +246,7 @@ bool EventLoop::run_once(Duration max_wait) {
     // readiness. Timers wait for one more poll, at once, so none judges a link silent that
     // only this process did not hear (the air gateway, held 5.8 s, called LTE lost and back
     // 0.1 s later). Once only: a machine that keeps it that late must not starve its timers.
-    const bool timers_wait = timeout >= 0 && late >= kStall && !std::exchange(timers_waited_, false);
+    const bool timers_wait = timeout >= 0 && late >= kStall && !timers_waited_;
     round_++;
     // A full event array may have left ready fds out: their data waits for the next round,
     // which must come at once.
@@ -262,8 +262,9 @@ bool EventLoop::run_once(Duration max_wait) {
     }
     for (auto& hook : after_io_hooks_)
         hook();
+    timers_waited_ = timers_wait;
     if (timers_wait)
-        prompt_round_ = timers_waited_ = true;
+        prompt_round_ = true;
     else
         run_due_timers();
     for (auto& hook : round_hooks_)
