@@ -18,6 +18,7 @@ import sys
 from bisect import bisect_right
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Tuple
 
@@ -486,17 +487,28 @@ class StallEvents:
         lost: Dict[Tuple[str, str], bool] = {}
         for line in logged_changes(log):
             t = self.records.mono(log_time(line))
-            m = LOGGED_EVENT.search(line)
-            if m is None:                       # a bond's switch: in a stall or 5 s after
+            ev = logged_event(line)
+            if ev is None:                      # a bond's switch: in a stall or 5 s after
                 (rig if any(s <= t <= e + 5.0 for s, e in self.stalls) else product).append((t, line))
                 continue
-            link, direction, what = link_of(m.group(1)), m.group(2) or "", m.group(3)
+            link, direction, what = link_of(ev[0]), ev[1], ev[2]
             key = (link, direction)
             ok = (self.silent(link, direction, t, "as the far side reports" in line)
                   if what == "lost" else lost.get(key, False))
             lost[key] = ok if what == "lost" else False
             (rig if ok else product).append((t, line))
         return rig, product
+
+    @staticmethod
+    def told(t: float, line: str, rig_logged: Iterable[List[Tuple[float, str]]]) -> bool:
+        """Whether an event a GCS or SITL got at `t` (a console line or a STATUSTEXT) is one
+        of `rig_logged` (split()'s first lists) in the 5 s before: the same link and change,
+        and the same way unless it tells of the link as a whole (a STATUSTEXT does)."""
+        ev = link_event(line)
+        return ev is not None and any(
+            x is not None and t - 5.0 <= at <= t + SLACK and (x[0], x[2]) == (ev[0], ev[2])
+            and ev[1] in ("", x[1])
+            for logged in rig_logged for at, l in logged for x in [logged_event(l)])
 
 
 LOGGED_EVENT = re.compile(r"link event: link (\S+) (?:(downlink|uplink|inbound|outbound) )?(lost|back) ")
@@ -512,8 +524,7 @@ def logged_event(line: str) -> Optional[Tuple[str, str, str]]:
 def log_time(line: str) -> float:
     """The time.time() of a gateway's log line ("2026-12-03 08:52:24.930 mavbond: ..."): the
     daemon writes its local time."""
-    import datetime
-    return datetime.datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S.%f").timestamp()
+    return datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S.%f").timestamp()
 
 
 # --- what the operator's tools show ------------------------------------------------------------

@@ -280,27 +280,15 @@ def test_arm_and_take_off_each_command_acked_once(runs):
 
 
 def _rig_events(run: Run):
-    """The rig's stalls and which changes each gateway logged are those stalls told truly
-    (judge.StallEvents): {side: (the rig's, the product's)}."""
+    """(the rig's stalls, judge.StallEvents over them, {side: (the changes that gateway
+    logged that are those stalls told truly, the product's)})."""
     stalls = J.rig_stalls(run.records, [d.log() for d in run.rig.gateways.values()])
     events = J.StallEvents(run.records, stalls)
     return stalls, events, {side: events.split(d.log()) for side, d in run.rig.gateways.items()}
 
 
-def _told_by_the_rig(t: float, line: str, rig_logged) -> bool:
-    """Whether an event a GCS or SITL got (a console line or a STATUSTEXT) at `t` is one a
-    gateway logged, as the rig's, in the 5 s before: the same link, way and change."""
-    ev = J.link_event(line)
-    if ev is None:
-        return False
-    for side in rig_logged.values():
-        for at, logged in side[0]:
-            x = J.logged_event(logged)
-            # A STATUSTEXT tells of the link as a whole, the log of the way it was heard.
-            if x and t - 5.0 <= at <= t + J.SLACK and (x[0], x[2]) == (ev[0], ev[2]) and \
-                    ev[1] in ("", x[1]):
-                return True
-    return False
+def _told_by_the_rig(t: float, line: str, split) -> bool:
+    return J.StallEvents.told(t, line, [rig for rig, _ in split.values()])
 
 
 def _stalls_line(name: str, run: Run, stalls, split) -> str:
@@ -315,7 +303,7 @@ def test_one_link_event_per_real_change(runs):
     starts), as the link as a whole (each was cut both ways); beyond those, only what the rig's
     own stalls really did to a link (judge.StallEvents), nothing else."""
     run = runs["session"]
-    stalls, events, split = _rig_events(run)
+    stalls, _, split = _rig_events(run)
     shown = [(t, l) for s, _ in run.gcs for t, l in J.link_events_shown(s.lines)]
     want = Counter({("sik", "", "lost"): 1, ("sik", "", "back"): 1, ("lte", "", "lost"): 1,
                     ("lte", "", "back"): 1})
